@@ -1,0 +1,57 @@
+//! The policy interface: two thumbnails in, a speed command out.
+//!
+//! Implementations own whatever scratch memory they need, sized when they are built, and
+//! read the caller's thumbnails in place, so an allocation-free engine can sit behind it.
+//! The control loop checks what comes out (clamping, non-finite values) before it reaches
+//! the walk.
+
+mod brightness;
+
+pub use brightness::BrightnessPolicy;
+
+use crate::thumbnail::{BottomThumbnail, TopThumbnail};
+
+/// What a policy sees at one step: the newest thumbnail of each camera, owned by the caller.
+#[derive(Clone, Copy, Debug)]
+pub struct PolicyInput<'a> {
+    pub top: &'a TopThumbnail,
+    pub bottom: &'a BottomThumbnail,
+}
+
+/// A policy's raw answer in normalised units, before the controller clamps it and turns
+/// non-finite values into a stop.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PolicyOutput {
+    pub forward: f32,
+    pub left: f32,
+    pub turn: f32,
+}
+
+/// A policy step that produced no command. The tick publishes a stop and counts it.
+#[derive(Debug, thiserror::Error)]
+pub enum PolicyError {
+    /// The inference engine failed; the message says why. Building the message may allocate,
+    /// which is acceptable on this failure path only.
+    #[error("inference failed: {0}")]
+    Inference(String),
+}
+
+/// A driving policy run by the controller at camera rate.
+pub trait Policy {
+    /// One step on the newest pair of thumbnails.
+    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError>;
+
+    /// Forgets any state carried between steps (the R-CNN's LSTM state); called at an
+    /// episode's start.
+    fn reset(&mut self);
+}
+
+impl<P: Policy + ?Sized> Policy for Box<P> {
+    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        (**self).step(input)
+    }
+
+    fn reset(&mut self) {
+        (**self).reset()
+    }
+}

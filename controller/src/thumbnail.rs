@@ -1,0 +1,223 @@
+//! Thumbnails: the grayscale images the policy sees, 4x4 block means of a frame's luma.
+//!
+//! DESIGN.md: 640x480 becomes 160x120 and 320x240 becomes 80x60, `u8`, row-major. Each
+//! thumbnail pixel is the mean of the 16 Y values of its block, rounded half up:
+//! `(sum + 8) / 16` in integers, so a block of 16 equal values keeps that value.
+
+use crate::frame::CameraFrame;
+
+/// A grayscale image of `WIDTH` x `HEIGHT` pixels, row-major.
+#[repr(C)]
+#[derive(Clone, PartialEq, Eq)]
+pub struct Thumbnail<const WIDTH: usize, const HEIGHT: usize> {
+    pixels: [[u8; WIDTH]; HEIGHT],
+}
+
+/// The top camera's thumbnail, 160x120.
+pub type TopThumbnail = Thumbnail<160, 120>;
+/// The bottom camera's thumbnail, 80x60.
+pub type BottomThumbnail = Thumbnail<80, 60>;
+
+/// Side of the square block that one thumbnail pixel averages.
+pub const BLOCK: usize = 4;
+
+impl<const WIDTH: usize, const HEIGHT: usize> Thumbnail<WIDTH, HEIGHT> {
+    pub const WIDTH: usize = WIDTH;
+    pub const HEIGHT: usize = HEIGHT;
+    pub const PIXELS: usize = WIDTH * HEIGHT;
+
+    /// A black thumbnail.
+    pub const fn black() -> Self {
+        Self {
+            pixels: [[0; WIDTH]; HEIGHT],
+        }
+    }
+
+    /// A thumbnail from row-major bytes; `None` unless there are exactly `WIDTH * HEIGHT`.
+    pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
+        let mut thumbnail = Self::black();
+        if bytes.len() != Self::PIXELS {
+            return None;
+        }
+        thumbnail.as_bytes_mut().copy_from_slice(bytes);
+        Some(thumbnail)
+    }
+
+    pub fn pixel(&self, x: usize, y: usize) -> u8 {
+        self.pixels[y][x]
+    }
+
+    pub fn rows(&self) -> &[[u8; WIDTH]; HEIGHT] {
+        &self.pixels
+    }
+
+    pub fn as_bytes(&self) -> &[u8] {
+        self.pixels.as_flattened()
+    }
+
+    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+        self.pixels.as_flattened_mut()
+    }
+}
+
+impl<const WIDTH: usize, const HEIGHT: usize> core::fmt::Debug for Thumbnail<WIDTH, HEIGHT> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "Thumbnail<{WIDTH}x{HEIGHT}>")
+    }
+}
+
+/// Luma bytes of a YUYV pixel pair group: bytes 0, 2, 4 and 6 of eight little-endian bytes,
+/// each left in its own 16-bit lane.
+const LUMA_LANES: u64 = 0x00FF_00FF_00FF_00FF;
+/// Multiplying by this adds the four 16-bit lanes into the top lane.
+const SUM_LANES: u64 = 0x0001_0001_0001_0001;
+
+/// Downscales `frame` into `out` by 4x4 block means of the luma channel. Allocation-free.
+///
+/// Works on eight bytes (four pixels, one block row) at a time: masking keeps the four Y
+/// bytes in separate 16-bit lanes, four block rows are added lane-wise (at most 4 x 255 per
+/// lane, no overflow), and one multiplication adds the lanes. Plain integer code, so it is
+/// as fast on the Nao V5's SSSE3 Atom as the compiler can make it, with no `unsafe`.
+pub fn downscale<const FW: usize, const FH: usize, const TW: usize, const TH: usize>(
+    frame: &CameraFrame<FW, FH>,
+    out: &mut Thumbnail<TW, TH>,
+) {
+    const {
+        assert!(
+            FW == BLOCK * TW && FH == BLOCK * TH,
+            "a thumbnail is a quarter of the frame in each direction"
+        );
+    }
+    let block_rows = frame.rows().chunks_exact(BLOCK);
+    for (out_row, block_row) in out.pixels.iter_mut().zip(block_rows) {
+        let mut lane_sums = [0u64; TW];
+        for frame_row in block_row {
+            let (groups, _) = frame_row.as_flattened().as_chunks::<8>();
+            for (lanes, group) in lane_sums.iter_mut().zip(groups) {
+                *lanes += u64::from_le_bytes(*group) & LUMA_LANES;
+            }
+        }
+        for (pixel, lanes) in out_row.iter_mut().zip(lane_sums) {
+            let sum = lanes.wrapping_mul(SUM_LANES) >> 48;
+            // sum <= 16 * 255, so the rounded mean fits a u8.
+            *pixel = ((sum + 8) >> 4) as u8;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::{BottomFrame, FrameHeader, TopFrame};
+    use crate::units::Timestamp;
+    use proptest::prelude::*;
+
+    /// The definition, written the obvious way.
+    fn naive_downscale<const FW: usize, const FH: usize, const TW: usize, const TH: usize>(
+        frame: &CameraFrame<FW, FH>,
+    ) -> Thumbnail<TW, TH> {
+        let mut out = Thumbnail::black();
+        for ty in 0..TH {
+            for tx in 0..TW {
+                let mut sum = 0u32;
+                for y in ty * 4..ty * 4 + 4 {
+                    for x in tx * 4..tx * 4 + 4 {
+                        sum += u32::from(frame.luma(x, y));
+                    }
+                }
+                out.pixels[ty][tx] = ((sum as f64 / 16.0) + 0.5).floor() as u8;
+            }
+        }
+        out
+    }
+
+    fn frame_from<const W: usize, const H: usize>(bytes: &[u8]) -> Box<CameraFrame<W, H>> {
+        let header = FrameHeader::yuyv(
+            0,
+            Timestamp::ZERO,
+            CameraFrame::<W, H>::WIDTH,
+            CameraFrame::<W, H>::HEIGHT,
+        );
+        CameraFrame::from_yuyv(header, bytes).expect("valid frame")
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+
+        #[test]
+        fn block_means_equal_the_naive_reference_on_random_bottom_images(
+            bytes in proptest::collection::vec(any::<u8>(), BottomFrame::PIXEL_BYTES)
+        ) {
+            let frame = frame_from::<320, 240>(&bytes);
+            let mut fast = BottomThumbnail::black();
+            downscale(&frame, &mut fast);
+            prop_assert!(fast == naive_downscale(&frame));
+        }
+
+        #[test]
+        fn block_means_equal_the_naive_reference_on_random_top_images(seed in any::<u64>()) {
+            // A 600 KiB strategy shrinks slowly; derive the bytes from a seed instead.
+            let mut state = seed | 1;
+            let bytes: Vec<u8> = (0..TopFrame::PIXEL_BYTES)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state >> 32) as u8
+                })
+                .collect();
+            let frame = frame_from::<640, 480>(&bytes);
+            let mut fast = TopThumbnail::black();
+            downscale(&frame, &mut fast);
+            prop_assert!(fast == naive_downscale(&frame));
+        }
+
+        #[test]
+        fn a_constant_luma_gives_that_constant(luma in any::<u8>(), chroma in any::<u8>()) {
+            let bytes: Vec<u8> = (0..TopFrame::PIXEL_BYTES)
+                .map(|i| if i % 2 == 0 { luma } else { chroma })
+                .collect();
+            let mut thumbnail = TopThumbnail::black();
+            downscale(&frame_from::<640, 480>(&bytes), &mut thumbnail);
+            prop_assert!(thumbnail.as_bytes().iter().all(|&p| p == luma));
+        }
+    }
+
+    #[test]
+    fn chroma_does_not_leak_into_the_thumbnail() {
+        let bytes: Vec<u8> = (0..BottomFrame::PIXEL_BYTES)
+            .map(|i| if i % 2 == 0 { 0 } else { 255 })
+            .collect();
+        let mut thumbnail = BottomThumbnail::black();
+        downscale(&frame_from::<320, 240>(&bytes), &mut thumbnail);
+        assert!(thumbnail.as_bytes().iter().all(|&p| p == 0));
+    }
+
+    #[test]
+    fn means_round_half_up() {
+        // Eight 0s and eight 1s per block: mean 0.5 rounds to 1; one 1 in 16 rounds to 0.
+        let mut frame = BottomFrame::new_boxed();
+        for (y, row) in frame.rows_mut().iter_mut().enumerate() {
+            for (x, pixel) in row.iter_mut().enumerate() {
+                let left_half = x % 4 < 2;
+                let in_first_block_column = x < 4;
+                pixel[0] = if in_first_block_column {
+                    u8::from(x == 0 && y % 4 == 0 && y < 4)
+                } else {
+                    u8::from(left_half)
+                };
+            }
+        }
+        let mut thumbnail = BottomThumbnail::black();
+        downscale(&frame, &mut thumbnail);
+        assert_eq!(thumbnail.pixel(0, 0), 0, "1/16 rounds down");
+        assert_eq!(thumbnail.pixel(1, 0), 1, "8/16 rounds up");
+        assert_eq!(thumbnail.pixel(1, 5), 1);
+    }
+
+    #[test]
+    fn thumbnail_from_bytes_checks_the_length() {
+        assert!(BottomThumbnail::from_bytes(&[0; 4800]).is_some());
+        assert!(BottomThumbnail::from_bytes(&[0; 4799]).is_none());
+    }
+}

@@ -1,0 +1,181 @@
+//! The controller tick allocates nothing after start-up.
+//!
+//! A counting global allocator counts the allocations made on this test's thread while
+//! counting is switched on; the tick runs over random frames with drops, duplicates,
+//! reordering and camera silences, so every branch of the tick is exercised.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use dribble_controller::policy::BrightnessPolicy;
+use dribble_controller::{CameraFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock};
+use rand::{Rng, RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+struct CountingAllocator;
+
+static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
+static ALLOCATED_BYTES: AtomicU64 = AtomicU64::new(0);
+
+thread_local! {
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+}
+
+fn note(bytes: usize) {
+    if COUNTING.with(Cell::get) {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        ALLOCATED_BYTES.fetch_add(bytes as u64, Ordering::Relaxed);
+    }
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; counting has no effect on
+// the memory handed out.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note(layout.size());
+        // SAFETY: same contract as ours.
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note(layout.size());
+        // SAFETY: same contract as ours.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note(new_size);
+        // SAFETY: same contract as ours.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as ours.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: CountingAllocator = CountingAllocator;
+
+/// Counts allocations on this thread while `body` runs.
+fn count_allocations(body: impl FnOnce()) -> (u64, u64) {
+    let (before, before_bytes) = (
+        ALLOCATIONS.load(Ordering::Relaxed),
+        ALLOCATED_BYTES.load(Ordering::Relaxed),
+    );
+    COUNTING.with(|c| c.set(true));
+    body();
+    COUNTING.with(|c| c.set(false));
+    (
+        ALLOCATIONS.load(Ordering::Relaxed) - before,
+        ALLOCATED_BYTES.load(Ordering::Relaxed) - before_bytes,
+    )
+}
+
+/// A camera that mostly delivers its next frame, and sometimes drops one, sends one twice,
+/// sends an older one, or goes silent for a while.
+struct UnreliableCamera<const W: usize, const H: usize> {
+    /// Frames with random pixels, made before counting starts; sent in turn.
+    pool: Vec<Box<CameraFrame<W, H>>>,
+    next_sequence: u64,
+    silent_ticks: u32,
+}
+
+impl<const W: usize, const H: usize> UnreliableCamera<W, H> {
+    fn new(rng: &mut ChaCha8Rng) -> Self {
+        let pool = (0..3)
+            .map(|_| {
+                let mut frame = CameraFrame::<W, H>::new_boxed();
+                rng.fill_bytes(frame.as_bytes_mut());
+                frame
+            })
+            .collect();
+        Self {
+            pool,
+            next_sequence: 0,
+            silent_ticks: 0,
+        }
+    }
+
+    fn frame(&mut self, rng: &mut ChaCha8Rng, clock: &ManualClock) -> Option<&CameraFrame<W, H>> {
+        if self.silent_ticks > 0 {
+            self.silent_ticks -= 1;
+            return None;
+        }
+        let sequence = match rng.random_range(0..100) {
+            0..45 => {
+                self.next_sequence += 1;
+                self.next_sequence
+            }
+            45..80 => return None, // no frame this tick
+            80..88 => {
+                self.next_sequence += 2; // one dropped
+                self.next_sequence
+            }
+            88..94 => self.next_sequence,                   // duplicate
+            94..99 => self.next_sequence.saturating_sub(3), // late, out of order
+            _ => {
+                self.silent_ticks = rng.random_range(5..20); // 50 to 200 ms silence
+                return None;
+            }
+        };
+        let frame = &mut self.pool[(sequence % 3) as usize];
+        frame.restamp(sequence, clock.now());
+        Some(frame)
+    }
+}
+
+#[test]
+fn ten_thousand_ticks_allocate_nothing_after_start_up() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2016);
+    let mut top = UnreliableCamera::<640, 480>::new(&mut rng);
+    let mut bottom = UnreliableCamera::<320, 240>::new(&mut rng);
+    let clock = ManualClock::default();
+    let mut control = ControlLoop::new(
+        LoopConfig::default(),
+        BrightnessPolicy::default(),
+        clock.clone(),
+    );
+    let mut run = |ticks: u32| {
+        for _ in 0..ticks {
+            let input = CameraInput {
+                top: top.frame(&mut rng, &clock),
+                bottom: bottom.frame(&mut rng, &clock),
+            };
+            control.tick(input);
+            // Some ticks run long, so that deadlines are missed too.
+            if rng.random_bool(0.01) {
+                clock.advance(Duration::from_millis(25));
+            }
+            control.wait_for_next_tick();
+        }
+    };
+    run(100); // warm-up
+    let (allocations, bytes) = count_allocations(|| run(10_000));
+    println!("allocations in 10,000 ticks after warm-up: {allocations} ({bytes} bytes)");
+
+    let counters = *control.counters();
+    let sync = *control.sync_counters();
+    println!("{counters:?}\n{sync:?}");
+    assert_eq!(counters.ticks, 10_100);
+    assert!(counters.new_commands > 1000, "{counters:?}");
+    assert!(counters.repeated_commands > 1000, "{counters:?}");
+    assert!(counters.camera_stops > 0, "{counters:?}");
+    assert!(counters.deadline_misses > 0, "{counters:?}");
+    assert!(sync.duplicates.iter().all(|&n| n > 0), "{sync:?}");
+    assert!(sync.out_of_order.iter().all(|&n| n > 0), "{sync:?}");
+    assert!(sync.restarts.iter().all(|&n| n > 0), "{sync:?}");
+    assert_eq!(allocations, 0, "the tick allocated {bytes} bytes");
+}
+
+#[test]
+fn the_counter_sees_allocations() {
+    // Without this, a broken counter would let the test above pass whatever the tick did.
+    let (allocations, bytes) = count_allocations(|| {
+        std::hint::black_box(vec![0u8; 100]);
+    });
+    assert_eq!((allocations, bytes), (1, 100));
+}
