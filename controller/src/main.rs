@@ -1,10 +1,12 @@
 //! `dribble-controller`: the robot process.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand};
-use dribble_controller::policy::BrightnessPolicy;
+use dribble_controller::Policy;
+use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::{
     BottomFrame, CameraInput, Clock, ControlLoop, LoopConfig, MonotonicClock, SyncConfig, TopFrame,
@@ -28,6 +30,10 @@ enum Command {
     /// with a hand-written brightness policy, then prints its statistics. Use it on a robot
     /// to check that the loop keeps its rate and the 2 ms tick budget there.
     DryRun {
+        /// A learned policy's manifest (`policy.toml`); without it, the brightness test
+        /// policy drives.
+        #[arg(long)]
+        policy: Option<PathBuf>,
         /// How long to run, in seconds.
         #[arg(long, default_value_t = 10.0)]
         seconds: f64,
@@ -48,20 +54,47 @@ fn main() -> anyhow::Result<()> {
     };
     match cli.command {
         Command::DryRun {
+            policy,
             seconds,
             drop_bottom_every,
-        } => dry_run(config, seconds, drop_bottom_every),
+        } => dry_run(
+            config,
+            load_policy(policy.as_deref())?,
+            seconds,
+            drop_bottom_every,
+        ),
     }
 }
 
-fn dry_run(config: LoopConfig, seconds: f64, drop_bottom_every: u64) -> anyhow::Result<()> {
+fn load_policy(manifest: Option<&Path>) -> anyhow::Result<Box<dyn Policy>> {
+    let Some(manifest) = manifest else {
+        println!("policy: brightness test policy");
+        return Ok(Box::new(BrightnessPolicy::default()));
+    };
+    let (policy, manifest) = OnnxPolicy::load(manifest)?;
+    println!(
+        "policy: {} from {} ({} network file(s), trained on {:?})",
+        manifest.kind,
+        manifest.directory.display(),
+        manifest.networks.len(),
+        manifest.training.dataset
+    );
+    Ok(Box::new(policy))
+}
+
+fn dry_run(
+    config: LoopConfig,
+    policy: Box<dyn Policy>,
+    seconds: f64,
+    drop_bottom_every: u64,
+) -> anyhow::Result<()> {
     let duration = Duration::try_from_secs_f64(seconds)
         .with_context(|| format!("--seconds must be a non-negative duration, got {seconds}"))?;
     let camera_period = SyncConfig::default().camera_period;
     let pattern = TestPattern::default();
     let mut top = TopFrame::new_boxed();
     let mut bottom = BottomFrame::new_boxed();
-    let mut control = ControlLoop::new(config, BrightnessPolicy::default(), MonotonicClock);
+    let mut control = ControlLoop::new(config, policy, MonotonicClock);
     let start = control.clock().now();
     let end = start + duration;
     // The bottom camera fires half a period after the top one.
@@ -90,11 +123,7 @@ fn dry_run(config: LoopConfig, seconds: f64, drop_bottom_every: u64) -> anyhow::
     Ok(())
 }
 
-fn print_statistics<P, C>(control: &ControlLoop<P, C>)
-where
-    P: dribble_controller::Policy,
-    C: Clock,
-{
+fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) {
     let counters = control.counters();
     let sync = control.sync_counters();
     println!(

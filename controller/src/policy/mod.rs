@@ -6,8 +6,15 @@
 //! the walk.
 
 mod brightness;
+mod learned;
+pub mod manifest;
+mod onnx_network;
 
 pub use brightness::BrightnessPolicy;
+pub use learned::{CnnPolicy, HcnnPolicy, OnnxPolicy, RcnnPolicy};
+pub use manifest::{PolicyKind, PolicyManifest};
+
+use std::path::PathBuf;
 
 use crate::thumbnail::{BottomThumbnail, TopThumbnail};
 
@@ -34,6 +41,27 @@ pub enum PolicyError {
     /// which is acceptable on this failure path only.
     #[error("inference failed: {0}")]
     Inference(String),
+}
+
+/// Why a policy could not be loaded. Every variant names the file at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum PolicyLoadError {
+    #[error("cannot read {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("bad policy manifest {}: {problem}", path.display())]
+    Manifest { path: PathBuf, problem: String },
+    #[error("{} {problem}", path.display())]
+    Onnx { path: PathBuf, problem: String },
+    #[error("{}: {what} must be {expected}, found {found}", path.display())]
+    Mismatch {
+        path: PathBuf,
+        what: String,
+        expected: String,
+        found: String,
+    },
 }
 
 /// A driving policy run by the controller at camera rate.

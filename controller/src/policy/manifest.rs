@@ -1,0 +1,339 @@
+//! `policy.toml`: what a model directory tells the robot about its policy (DESIGN.md,
+//! "Policies"). Loading checks it against the contract, so that a wrong manifest fails at
+//! start-up with a message that names the field, not at the first tick.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::histogram::GATING_FEATURE_LEN;
+use crate::speed_command::WalkLimits;
+use crate::units::{MetresPerSecond, RadiansPerSecond};
+
+use super::PolicyLoadError;
+
+/// The manifest format this controller reads.
+pub const MANIFEST_FORMAT: u32 = 1;
+/// Shapes of the tensors the controller feeds and reads (batch 1, one channel).
+pub const TOP_SHAPE: [usize; 4] = [1, 1, 120, 160];
+pub const BOTTOM_SHAPE: [usize; 4] = [1, 1, 60, 80];
+pub const COMMAND_SHAPE: [usize; 2] = [1, 3];
+
+/// The three policy kinds of the paper.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PolicyKind {
+    /// One CNN on both thumbnails.
+    Cnn,
+    /// K CNNs; the nearest histogram centroid picks one per step.
+    Hcnn,
+    /// CNN branches and an LSTM whose state is carried between steps.
+    Rcnn,
+}
+
+impl fmt::Display for PolicyKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Cnn => "CNN",
+            Self::Hcnn => "H-CNN",
+            Self::Rcnn => "R-CNN",
+        })
+    }
+}
+
+/// A named tensor and its shape.
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TensorSpec {
+    pub name: String,
+    pub shape: Vec<usize>,
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Normalisation {
+    /// The network sees `pixel * scale` (1/255 in DESIGN.md).
+    pub scale: f32,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Inputs {
+    pub top: TensorSpec,
+    pub bottom: TensorSpec,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Outputs {
+    pub command: TensorSpec,
+}
+
+/// What a normalised command of 1.0 means for the walk the policy was trained with.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CommandScale {
+    pub forward_mps: f32,
+    pub left_mps: f32,
+    pub turn_radps: f32,
+}
+
+impl CommandScale {
+    pub fn walk_limits(&self) -> WalkLimits {
+        WalkLimits {
+            max_forward: MetresPerSecond(self.forward_mps),
+            max_left: MetresPerSecond(self.left_mps),
+            max_turn: RadiansPerSecond(self.turn_radps),
+        }
+    }
+}
+
+/// The R-CNN's LSTM state tensors, each `[1, 1, units]`.
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Recurrent {
+    pub units: usize,
+    pub h_in: String,
+    pub c_in: String,
+    pub h_out: String,
+    pub c_out: String,
+}
+
+/// The H-CNN's gate: one centroid of the 10-value histogram feature per network.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Gating {
+    pub clusters: usize,
+    pub centroids: Vec<[f32; GATING_FEATURE_LEN]>,
+}
+
+/// Where the weights came from.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainingRecord {
+    pub dataset: String,
+    pub epochs: u32,
+    pub train_error: Option<f64>,
+    pub test_error: Option<f64>,
+}
+
+/// A parsed and checked `policy.toml`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PolicyManifest {
+    pub format: u32,
+    pub kind: PolicyKind,
+    /// ONNX operator set the files were exported with.
+    pub opset: i64,
+    /// ONNX files, relative to the manifest's directory; one per H-CNN cluster.
+    pub networks: Vec<String>,
+    pub normalisation: Normalisation,
+    pub inputs: Inputs,
+    pub outputs: Outputs,
+    pub command_scale: CommandScale,
+    pub recurrent: Option<Recurrent>,
+    pub gating: Option<Gating>,
+    pub training: TrainingRecord,
+    /// The directory the manifest was read from; network paths are relative to it.
+    #[serde(skip)]
+    pub directory: PathBuf,
+}
+
+impl PolicyManifest {
+    /// Reads and checks the manifest at `path`.
+    pub fn load(path: &Path) -> Result<Self, PolicyLoadError> {
+        let text = std::fs::read_to_string(path).map_err(|source| PolicyLoadError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and checks manifest `text`; `path` locates the network files and the errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, PolicyLoadError> {
+        let mut manifest: Self =
+            toml::from_str(text).map_err(|error| PolicyLoadError::Manifest {
+                path: path.to_owned(),
+                problem: error.to_string(),
+            })?;
+        manifest.directory = path.parent().map(Path::to_owned).unwrap_or_default();
+        manifest
+            .check()
+            .map_err(|problem| PolicyLoadError::Manifest {
+                path: path.to_owned(),
+                problem,
+            })?;
+        Ok(manifest)
+    }
+
+    /// Paths of the network files.
+    pub fn network_paths(&self) -> impl Iterator<Item = PathBuf> + '_ {
+        self.networks.iter().map(|name| self.directory.join(name))
+    }
+
+    fn check(&self) -> Result<(), String> {
+        if self.format != MANIFEST_FORMAT {
+            return Err(format!(
+                "format {} is not the format {MANIFEST_FORMAT} this controller reads",
+                self.format
+            ));
+        }
+        check_shape("inputs.top", &self.inputs.top, &TOP_SHAPE)?;
+        check_shape("inputs.bottom", &self.inputs.bottom, &BOTTOM_SHAPE)?;
+        check_shape("outputs.command", &self.outputs.command, &COMMAND_SHAPE)?;
+        let scale = self.normalisation.scale;
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(format!(
+                "normalisation.scale must be positive, found {scale}"
+            ));
+        }
+        let limits = [
+            self.command_scale.forward_mps,
+            self.command_scale.left_mps,
+            self.command_scale.turn_radps,
+        ];
+        if !limits.iter().all(|l| l.is_finite() && *l > 0.0) {
+            return Err(format!(
+                "command_scale values must be positive, found {limits:?}"
+            ));
+        }
+        let networks = self.networks.len();
+        match self.kind {
+            PolicyKind::Cnn | PolicyKind::Rcnn if networks != 1 => {
+                return Err(format!(
+                    "a {} has one network file, found {networks}",
+                    self.kind
+                ));
+            }
+            PolicyKind::Rcnn => match &self.recurrent {
+                None => return Err("an R-CNN needs a [recurrent] table".into()),
+                Some(recurrent) if recurrent.units == 0 => {
+                    return Err("recurrent.units must be positive".into());
+                }
+                Some(_) => {}
+            },
+            PolicyKind::Hcnn => {
+                let Some(gating) = &self.gating else {
+                    return Err("an H-CNN needs a [gating] table with centroids".into());
+                };
+                if gating.clusters == 0
+                    || gating.centroids.len() != gating.clusters
+                    || networks != gating.clusters
+                {
+                    return Err(format!(
+                        "gating.clusters is {}, with {} centroids and {networks} network files: \
+                         all three must be equal and positive",
+                        gating.clusters,
+                        gating.centroids.len()
+                    ));
+                }
+                if gating.centroids.iter().flatten().any(|v| !v.is_finite()) {
+                    return Err("gating.centroids must be finite".into());
+                }
+            }
+            PolicyKind::Cnn => {}
+        }
+        Ok(())
+    }
+}
+
+fn check_shape(field: &str, spec: &TensorSpec, expected: &[usize]) -> Result<(), String> {
+    if spec.shape != expected {
+        return Err(format!(
+            "{field} ({:?}) has shape {:?}; the controller feeds and reads {expected:?}",
+            spec.name, spec.shape
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CNN: &str = r#"
+format = 1
+kind = "cnn"
+opset = 17
+networks = ["policy.onnx"]
+[normalisation]
+scale = 0.00392156862745098
+[inputs]
+top = { name = "top", shape = [1, 1, 120, 160] }
+bottom = { name = "bottom", shape = [1, 1, 60, 80] }
+[outputs]
+command = { name = "command", shape = [1, 3] }
+[command_scale]
+forward_mps = 0.25
+left_mps = 0.15
+turn_radps = 1.0
+[training]
+dataset = "test"
+epochs = 3
+test_error = 0.16
+"#;
+
+    fn parse(text: &str) -> Result<PolicyManifest, String> {
+        PolicyManifest::parse(text, Path::new("/robot/models/cnn/policy.toml"))
+            .map_err(|error| error.to_string())
+    }
+
+    #[test]
+    fn reads_a_cnn_manifest() {
+        let manifest = parse(CNN).expect("valid manifest");
+        assert_eq!(manifest.kind, PolicyKind::Cnn);
+        assert_eq!(
+            manifest.network_paths().collect::<Vec<_>>(),
+            [PathBuf::from("/robot/models/cnn/policy.onnx")]
+        );
+        assert_eq!(manifest.training.test_error, Some(0.16));
+        assert_eq!(manifest.command_scale.walk_limits(), WalkLimits::default());
+    }
+
+    #[test]
+    fn a_wrong_input_shape_names_the_field_and_both_shapes() {
+        let text = CNN.replace("[1, 1, 120, 160]", "[1, 1, 240, 320]");
+        let error = parse(&text).expect_err("wrong shape");
+        assert!(
+            error.contains(
+                "inputs.top (\"top\") has shape [1, 1, 240, 320]; the controller feeds and reads [1, 1, 120, 160]"
+            ),
+            "{error}"
+        );
+        assert!(error.contains("/robot/models/cnn/policy.toml"), "{error}");
+    }
+
+    #[test]
+    fn an_unknown_kind_or_field_is_refused() {
+        assert!(parse(&CNN.replace("\"cnn\"", "\"transformer\"")).is_err());
+        let error = parse(&CNN.replace("epochs = 3", "epochs = 3\nlearning_rate = 0.1"))
+            .expect_err("unknown field");
+        assert!(error.contains("learning_rate"), "{error}");
+    }
+
+    #[test]
+    fn an_rcnn_needs_its_state_table() {
+        let error = parse(&CNN.replace("\"cnn\"", "\"rcnn\"")).expect_err("no state");
+        assert!(error.contains("[recurrent]"), "{error}");
+    }
+
+    #[test]
+    fn an_hcnn_needs_one_centroid_per_network() {
+        let text = CNN.replace("\"cnn\"", "\"hcnn\"").replace(
+            "[training]",
+            "[gating]\nclusters = 2\ncentroids = [[0.1, 0.2, 0.3, 0.2, 0.2, 0.1, 0.2, 0.3, 0.2, 0.2]]\n[training]",
+        );
+        let error = parse(&text).expect_err("one centroid for two clusters");
+        assert!(
+            error.contains("gating.clusters is 2, with 1 centroids and 1 network files"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn a_nonsense_scale_is_refused() {
+        assert!(parse(&CNN.replace("forward_mps = 0.25", "forward_mps = -1.0")).is_err());
+        assert!(parse(&CNN.replace("scale = 0.00392156862745098", "scale = 0.0")).is_err());
+    }
+}

@@ -1,0 +1,78 @@
+//! Shared by the policy tests: the committed fixtures of `models/fixtures`.
+
+#![allow(dead_code)]
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use dribble_controller::{BottomThumbnail, TopThumbnail};
+
+pub fn fixture(kind: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../models/fixtures")
+        .join(kind)
+}
+
+/// The reference steps PyTorch computed for a fixture.
+pub struct Reference {
+    pub thumbnails: Vec<(Box<TopThumbnail>, Box<BottomThumbnail>)>,
+    pub commands: Vec<[f32; 3]>,
+    pub clusters: Option<Vec<usize>>,
+}
+
+pub fn reference(kind: &str) -> Reference {
+    let directory = fixture(kind).join("reference");
+    let meta: toml::Table = fs::read_to_string(directory.join("reference.toml"))
+        .expect("reference.toml")
+        .parse()
+        .expect("valid TOML");
+    let steps = meta["steps"].as_integer().expect("steps") as usize;
+    let pixels = fs::read(directory.join("thumbnails.u8")).expect("thumbnails.u8");
+    let per_step = TopThumbnail::PIXELS + BottomThumbnail::PIXELS;
+    assert_eq!(pixels.len(), steps * per_step);
+    let thumbnails = pixels
+        .chunks_exact(per_step)
+        .map(|step| {
+            let (top, bottom) = step.split_at(TopThumbnail::PIXELS);
+            (
+                Box::new(TopThumbnail::from_bytes(top).expect("top size")),
+                Box::new(BottomThumbnail::from_bytes(bottom).expect("bottom size")),
+            )
+        })
+        .collect();
+    let raw = fs::read(directory.join("commands.f32")).expect("commands.f32");
+    let commands = raw
+        .chunks_exact(12)
+        .map(|c| {
+            let value = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+            [value(0), value(4), value(8)]
+        })
+        .collect::<Vec<_>>();
+    assert_eq!(commands.len(), steps);
+    let clusters = meta.get("clusters").map(|list| {
+        list.as_array()
+            .expect("clusters list")
+            .iter()
+            .map(|k| k.as_integer().expect("cluster index") as usize)
+            .collect()
+    });
+    Reference {
+        thumbnails,
+        commands,
+        clusters,
+    }
+}
+
+/// A scratch copy of a fixture directory, for tests that break it.
+pub fn scratch_copy(kind: &str, test: &str) -> PathBuf {
+    let target = std::env::temp_dir().join(format!("dribble-{test}-{kind}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&target);
+    fs::create_dir_all(&target).expect("scratch dir");
+    for entry in fs::read_dir(fixture(kind)).expect("fixture dir") {
+        let entry = entry.expect("entry");
+        if entry.file_type().expect("file type").is_file() {
+            fs::copy(entry.path(), target.join(entry.file_name())).expect("copy");
+        }
+    }
+    target
+}

@@ -1,0 +1,105 @@
+"""`policy.toml`: what the robot needs to know to run a policy (DESIGN.md, "Policies")."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import contract
+
+FORMAT = 1
+
+
+@dataclass
+class TrainingRecord:
+    """Where the weights came from."""
+
+    dataset: str
+    epochs: int
+    train_error: float | None = None
+    test_error: float | None = None
+
+
+@dataclass
+class Manifest:
+    kind: str
+    networks: list[str]
+    training: TrainingRecord
+    centroids: list[list[float]] | None = None
+    lstm_units: int | None = None
+    opset: int = contract.OPSET
+    command_scale: dict[str, float] = field(default_factory=lambda: dict(contract.COMMAND_SCALE))
+
+    def to_toml(self) -> str:
+        lines = [
+            "# dribble policy manifest (shared/DESIGN.md, \"Policies\").",
+            f"format = {FORMAT}",
+            f'kind = "{self.kind}"',
+            f"opset = {self.opset}",
+            f"networks = [{', '.join(_string(n) for n in self.networks)}]",
+            "",
+            "# The network sees value * scale of each u8 thumbnail pixel.",
+            "[normalisation]",
+            f"scale = {_float(contract.INPUT_SCALE)}",
+            "",
+            "[inputs]",
+            f'top = {{ name = "{contract.TOP_INPUT}", shape = [1, 1, {contract.TOP_SHAPE[0]}, {contract.TOP_SHAPE[1]}] }}',
+            f'bottom = {{ name = "{contract.BOTTOM_INPUT}", shape = [1, 1, {contract.BOTTOM_SHAPE[0]}, {contract.BOTTOM_SHAPE[1]}] }}',
+            "",
+            "[outputs]",
+            f'command = {{ name = "{contract.COMMAND_OUTPUT}", shape = [1, 3] }}',
+            "",
+            "# What a normalised command of 1.0 means.",
+            "[command_scale]",
+            *(f"{key} = {_float(value)}" for key, value in self.command_scale.items()),
+        ]
+        if self.kind == "rcnn":
+            units = self.lstm_units or contract.LSTM_UNITS
+            lines += [
+                "",
+                "# LSTM state, zero at an episode's start, carried from outputs to inputs.",
+                "[recurrent]",
+                f"units = {units}",
+                f'h_in = "{contract.H_INPUT}"',
+                f'c_in = "{contract.C_INPUT}"',
+                f'h_out = "{contract.H_OUTPUT}"',
+                f'c_out = "{contract.C_OUTPUT}"',
+            ]
+        if self.kind == "hcnn":
+            assert self.centroids is not None, "an H-CNN manifest needs centroids"
+            rows = ",\n".join("  [" + ", ".join(_float(v) for v in row) + "]" for row in self.centroids)
+            lines += [
+                "",
+                "# Nearest centroid (Euclidean) of the 10-value histogram feature picks networks[k].",
+                "[gating]",
+                f"clusters = {len(self.centroids)}",
+                f"centroids = [\n{rows},\n]",
+            ]
+        lines += ["", "[training]", f"dataset = {_string(self.training.dataset)}", f"epochs = {self.training.epochs}"]
+        for key in ("train_error", "test_error"):
+            value = getattr(self.training, key)
+            if value is not None:
+                lines.append(f"{key} = {_float(value)}")
+        return "\n".join(lines) + "\n"
+
+    def write(self, directory: Path) -> Path:
+        path = Path(directory) / "policy.toml"
+        path.write_text(self.to_toml())
+        return path
+
+
+def load(path: Path) -> dict:
+    with open(path, "rb") as file:
+        return tomllib.load(file)
+
+
+def _float(value: float) -> str:
+    if not math.isfinite(value):
+        raise ValueError(f"manifest values must be finite, got {value}")
+    return repr(float(value))
+
+
+def _string(value: str) -> str:
+    return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'

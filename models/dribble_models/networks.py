@@ -1,0 +1,120 @@
+"""The three policy networks of the paper, as DESIGN.md specifies them.
+
+Each camera has a branch: conv 5x5 stride 2 padding 2, ReLU, max-pool 2x2, twice (16 then 32
+filters for the top camera, 8 then 16 for the bottom one). The flattened branches make
+32*7*10 + 16*4*5 = 2560 features.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from . import contract
+from .gating import nearest_cluster
+
+FEATURES = 32 * 7 * 10 + 16 * 4 * 5
+
+
+def camera_branch(first: int, second: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(1, first, kernel_size=5, stride=2, padding=2),
+        nn.ReLU(),
+        nn.MaxPool2d(2),
+        nn.Conv2d(first, second, kernel_size=5, stride=2, padding=2),
+        nn.ReLU(),
+        nn.MaxPool2d(2),
+        nn.Flatten(),
+    )
+
+
+class CameraFeatures(nn.Module):
+    """Both camera branches, flattened and concatenated: [B,1,120,160], [B,1,60,80] -> [B,2560]."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.top = camera_branch(16, 32)
+        self.bottom = camera_branch(8, 16)
+
+    def forward(self, top: torch.Tensor, bottom: torch.Tensor) -> torch.Tensor:
+        return torch.cat([self.top(top), self.bottom(bottom)], dim=1)
+
+
+class CNN(nn.Module):
+    """Features, dense 128 ReLU, dense 3: (top, bottom) -> command [B,3]."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.features = CameraFeatures()
+        self.head = nn.Sequential(nn.Linear(FEATURES, 128), nn.ReLU(), nn.Linear(128, 3))
+
+    def forward(self, top: torch.Tensor, bottom: torch.Tensor) -> torch.Tensor:
+        return self.head(self.features(top, bottom))
+
+
+class RCNN(nn.Module):
+    """Features, an LSTM of 64 units, dense 3, over sequences [B,T,1,H,W]."""
+
+    def __init__(self, hidden: int = contract.LSTM_UNITS) -> None:
+        super().__init__()
+        self.features = CameraFeatures()
+        self.lstm = nn.LSTM(FEATURES, hidden, batch_first=True)
+        self.head = nn.Linear(hidden, 3)
+
+    def forward(
+        self,
+        top: torch.Tensor,
+        bottom: torch.Tensor,
+        state: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        batch, steps = top.shape[:2]
+        features = self.features(top.flatten(0, 1), bottom.flatten(0, 1))
+        out, state = self.lstm(features.view(batch, steps, -1), state)
+        return self.head(out), state
+
+    def zero_state(self, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
+        zeros = torch.zeros(1, batch, self.lstm.hidden_size)
+        return zeros, zeros.clone()
+
+
+class RCNNStep(nn.Module):
+    """One R-CNN step for the robot: (top, bottom, h_in, c_in) -> (command, h_out, c_out),
+    each state [1,1,64] (layers, batch, units)."""
+
+    def __init__(self, rcnn: RCNN) -> None:
+        super().__init__()
+        self.rcnn = rcnn
+
+    def forward(self, top, bottom, h_in, c_in):
+        features = self.rcnn.features(top, bottom).unsqueeze(1)
+        out, (h_out, c_out) = self.rcnn.lstm(features, (h_in, c_in))
+        return self.rcnn.head(out[:, 0]), h_out, c_out
+
+
+class HCNN(nn.Module):
+    """K CNNs and K centroids of the 10-value histogram feature; the nearest centroid picks
+    the CNN for each sample."""
+
+    def __init__(self, centroids: np.ndarray) -> None:
+        super().__init__()
+        self.centroids = np.asarray(centroids, dtype=np.float32)
+        self.experts = nn.ModuleList(CNN() for _ in range(len(self.centroids)))
+
+    def select(self, top_u8: np.ndarray, bottom_u8: np.ndarray) -> int:
+        return nearest_cluster(top_u8, bottom_u8, self.centroids)
+
+    def forward_u8(self, top_u8: np.ndarray, bottom_u8: np.ndarray) -> tuple[torch.Tensor, int]:
+        """One sample from u8 thumbnails: (command [1,3], chosen network)."""
+        k = self.select(top_u8, bottom_u8)
+        top, bottom = to_network_input(top_u8, bottom_u8)
+        return self.experts[k](top, bottom), k
+
+
+def to_network_input(top_u8: np.ndarray, bottom_u8: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """u8 thumbnails [..., H, W] -> f32 tensors [N,1,H,W] scaled as the robot scales them."""
+    def convert(thumbnails: np.ndarray, shape: tuple[int, int]) -> torch.Tensor:
+        array = np.asarray(thumbnails, dtype=np.uint8).reshape(-1, 1, *shape)
+        return torch.from_numpy(array.astype(np.float32) * np.float32(contract.INPUT_SCALE))
+
+    return convert(top_u8, contract.TOP_SHAPE), convert(bottom_u8, contract.BOTTOM_SHAPE)

@@ -1,0 +1,125 @@
+"""ONNX files agree with PyTorch, carry DESIGN.md's names and shapes, and stand alone."""
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+
+from dribble_models import contract
+from dribble_models.export import export_cnn, export_policy, export_rcnn_step
+from dribble_models.fixtures import synthetic_pairs
+from dribble_models.manifest import TrainingRecord, load
+from dribble_models.networks import CNN, FEATURES, HCNN, RCNN, to_network_input
+
+TOLERANCE = 1e-5
+RECORD = TrainingRecord(dataset="test", epochs=0)
+
+
+def session(path: Path) -> ort.InferenceSession:
+    return ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+
+
+def test_flattened_features_are_2560():
+    top, bottom = to_network_input(np.zeros((1, 120, 160), np.uint8), np.zeros((1, 60, 80), np.uint8))
+    assert CNN().features(top, bottom).shape == (1, 2560) == (1, FEATURES)
+
+
+def test_cnn_onnx_matches_pytorch(tmp_path, rng):
+    model = CNN().eval()
+    path = export_cnn(model, tmp_path / "cnn.onnx")
+    tops, bottoms = synthetic_pairs(rng, 8)
+    runtime = session(path)
+    worst = 0.0
+    for top_u8, bottom_u8 in zip(tops, bottoms):
+        top, bottom = to_network_input(top_u8, bottom_u8)
+        with torch.no_grad():
+            expected = model(top, bottom).numpy()
+        (got,) = runtime.run(None, {"top": top.numpy(), "bottom": bottom.numpy()})
+        worst = max(worst, float(np.abs(got - expected).max()))
+    print(f"CNN: max |ONNX - PyTorch| = {worst:.2e}")
+    assert worst <= TOLERANCE
+
+
+def test_hcnn_onnx_matches_pytorch_for_every_network_and_gate(tmp_path, rng):
+    tops, bottoms = synthetic_pairs(rng, 16)
+    from dribble_models.gating import fit_centroids, gating_feature
+
+    centroids = fit_centroids(np.stack([gating_feature(t, b) for t, b in zip(tops, bottoms)]), 4, seed=1)
+    model = HCNN(centroids).eval()
+    manifest = load(export_policy(model, tmp_path, RECORD))
+    assert manifest["kind"] == "hcnn" and manifest["gating"]["clusters"] == 4
+    runtimes = [session(tmp_path / name) for name in manifest["networks"]]
+    worst = 0.0
+    for top_u8, bottom_u8 in zip(tops, bottoms):
+        with torch.no_grad():
+            expected, k = model.forward_u8(top_u8, bottom_u8)
+        top, bottom = to_network_input(top_u8, bottom_u8)
+        (got,) = runtimes[k].run(None, {"top": top.numpy(), "bottom": bottom.numpy()})
+        worst = max(worst, float(np.abs(got - expected.numpy()).max()))
+    print(f"H-CNN: max |ONNX - PyTorch| = {worst:.2e}")
+    assert worst <= TOLERANCE
+
+
+def test_rcnn_stepped_from_distinct_nonzero_state_equals_the_whole_sequence(tmp_path, rng):
+    """The exported step, fed its own state back, must equal PyTorch's LSTM over the whole
+    sequence; h and c start distinct and non-zero so a swap of the two cannot hide."""
+    model = RCNN().eval()
+    runtime = session(export_rcnn_step(model, tmp_path / "rcnn.onnx"))
+    steps = 20
+    tops, bottoms = synthetic_pairs(rng, steps)
+    top, bottom = to_network_input(tops, bottoms)
+    h0 = torch.linspace(-0.8, 0.8, 64).reshape(1, 1, 64)
+    c0 = torch.linspace(1.5, -0.3, 64).reshape(1, 1, 64)
+    with torch.no_grad():
+        expected, (h_end, c_end) = model(top.unsqueeze(0), bottom.unsqueeze(0), (h0, c0))
+    h, c = h0.numpy(), c0.numpy()
+    worst = 0.0
+    for t in range(steps):
+        command, h, c = runtime.run(
+            ["command", "h_out", "c_out"],
+            {"top": top[t : t + 1].numpy(), "bottom": bottom[t : t + 1].numpy(), "h_in": h, "c_in": c},
+        )
+        worst = max(worst, float(np.abs(command - expected[0, t].numpy()).max()))
+    worst_state = max(float(np.abs(h - h_end.numpy()).max()), float(np.abs(c - c_end.numpy()).max()))
+    print(f"R-CNN: max |ONNX step - PyTorch sequence| = {worst:.2e}, final state {worst_state:.2e}")
+    assert worst <= TOLERANCE
+    assert worst_state <= TOLERANCE
+
+
+def test_rcnn_state_inputs_are_not_interchangeable(tmp_path, rng):
+    """Guards the test above: swapping h and c must change the answer."""
+    model = RCNN().eval()
+    runtime = session(export_rcnn_step(model, tmp_path / "rcnn.onnx"))
+    top, bottom = to_network_input(*synthetic_pairs(rng, 1))
+    h = np.full((1, 1, 64), 0.7, np.float32)
+    c = np.full((1, 1, 64), -0.4, np.float32)
+    inputs = {"top": top.numpy(), "bottom": bottom.numpy()}
+    straight = runtime.run(["command"], {**inputs, "h_in": h, "c_in": c})[0]
+    swapped = runtime.run(["command"], {**inputs, "h_in": c, "c_in": h})[0]
+    assert np.abs(straight - swapped).max() > 1e-3
+
+
+@pytest.mark.parametrize("kind", ["cnn", "rcnn"])
+def test_onnx_has_the_contract_names_shapes_and_opset_in_one_file(tmp_path, kind):
+    model = CNN() if kind == "cnn" else RCNN()
+    manifest_path = export_policy(model, tmp_path, RECORD)
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert files == ["policy.onnx", "policy.toml"], "weights must live inside the ONNX file"
+    graph = onnx.load(str(tmp_path / "policy.onnx"))
+    assert [o.version for o in graph.opset_import if o.domain in ("", "ai.onnx")] == [contract.OPSET]
+
+    def shapes(values):
+        return {v.name: [d.dim_value for d in v.type.tensor_type.shape.dim] for v in values}
+
+    inputs, outputs = shapes(graph.graph.input), shapes(graph.graph.output)
+    assert inputs["top"] == [1, 1, 120, 160] and inputs["bottom"] == [1, 1, 60, 80]
+    assert outputs["command"] == [1, 3]
+    if kind == "rcnn":
+        assert inputs["h_in"] == inputs["c_in"] == outputs["h_out"] == outputs["c_out"] == [1, 1, 64]
+    manifest = load(manifest_path)
+    assert manifest["inputs"]["top"] == {"name": "top", "shape": [1, 1, 120, 160]}
+    assert manifest["command_scale"] == contract.COMMAND_SCALE
+    assert ("recurrent" in manifest) == (kind == "rcnn")

@@ -1,0 +1,119 @@
+//! Allocations per policy step, per kind, measured with a counting allocator.
+//!
+//! tract allocates its intermediate tensors on every run by design, so these numbers are not
+//! zero; what the test holds to is that they are the same on every step (nothing grows or
+//! leaks from step to step) and that the tick around the policy adds nothing of its own.
+
+mod support;
+
+use std::time::Duration;
+
+use dribble_controller::policy::OnnxPolicy;
+use dribble_controller::test_pattern::TestPattern;
+use dribble_controller::thumbnail::downscale;
+use dribble_controller::{
+    BottomFrame, BottomThumbnail, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, Policy,
+    PolicyInput, TopFrame, TopThumbnail,
+};
+use support::counting_allocator::{CountingAllocator, count_allocations};
+use support::fixture_manifest;
+
+#[global_allocator]
+static ALLOCATOR: CountingAllocator = CountingAllocator;
+
+const STEPS: usize = 40;
+
+fn per_step_allocations(kind: &str) -> Vec<(u64, u64)> {
+    let (mut policy, _) = OnnxPolicy::load(&fixture_manifest(kind)).expect("fixture loads");
+    let pattern = TestPattern::default();
+    let (mut top_frame, mut bottom_frame) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    let (mut top, mut bottom) = (
+        Box::new(TopThumbnail::black()),
+        Box::new(BottomThumbnail::black()),
+    );
+    let mut counts = Vec::with_capacity(STEPS + 5);
+    for step in 0..STEPS + 5 {
+        let time = dribble_controller::Timestamp::from_nanos(step as u64 * 33_000_000);
+        pattern.paint(&mut top_frame, step as u64, time);
+        pattern.paint(&mut bottom_frame, step as u64, time);
+        downscale(&top_frame, &mut top);
+        downscale(&bottom_frame, &mut bottom);
+        let input = PolicyInput {
+            top: &top,
+            bottom: &bottom,
+        };
+        let mut result = None;
+        let counted = count_allocations(|| result = Some(policy.step(input)));
+        result.expect("stepped").expect("step succeeds");
+        counts.push(counted);
+    }
+    counts.split_off(5) // the first steps warm tract's caches
+}
+
+fn report(kind: &str) {
+    let counts = per_step_allocations(kind);
+    let (allocations, bytes): (Vec<u64>, Vec<u64>) = counts.iter().copied().unzip();
+    let mean_bytes = bytes.iter().sum::<u64>() as f64 / bytes.len() as f64;
+    println!(
+        "{kind}: {} to {} allocations per step, {:.0} bytes per step on average ({} to {})",
+        allocations.iter().min().expect("steps"),
+        allocations.iter().max().expect("steps"),
+        mean_bytes,
+        bytes.iter().min().expect("steps"),
+        bytes.iter().max().expect("steps"),
+    );
+    let spread =
+        allocations.iter().max().expect("steps") - allocations.iter().min().expect("steps");
+    assert!(
+        spread == 0,
+        "{kind}: allocations per step vary by {spread}, so something accumulates: {allocations:?}"
+    );
+}
+
+// One test function, so no other test runs beside it: tract shares caches between threads,
+// and a model run on another thread changes what this one allocates.
+#[test]
+fn allocations_per_step_are_steady_and_the_tick_adds_none() {
+    for kind in ["cnn", "hcnn", "rcnn"] {
+        report(kind);
+    }
+    tick_adds_no_allocation_to_the_policys();
+}
+
+fn tick_adds_no_allocation_to_the_policys() {
+    // A tick that computes allocates exactly what the policy step does; a repeating tick
+    // allocates nothing.
+    let (policy, _) = OnnxPolicy::load(&fixture_manifest("cnn")).expect("fixture loads");
+    let clock = ManualClock::default();
+    let mut control = ControlLoop::new(LoopConfig::default(), policy, clock.clone());
+    let pattern = TestPattern::default();
+    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    let mut compute_counts = Vec::new();
+    for sequence in 0..20 {
+        clock.advance(Duration::from_millis(33));
+        pattern.paint(&mut top, sequence, clock.now());
+        pattern.paint(&mut bottom, sequence, clock.now());
+        let input = CameraInput {
+            top: Some(&top),
+            bottom: Some(&bottom),
+        };
+        compute_counts.push(count_allocations(|| {
+            control.tick(input);
+        }));
+        clock.advance(Duration::from_millis(10));
+        let (repeat_allocations, _) = count_allocations(|| {
+            control.tick(CameraInput::default());
+        });
+        assert_eq!(repeat_allocations, 0);
+    }
+    assert_eq!(control.counters().new_commands, 20);
+    let policy_steps = per_step_allocations("cnn");
+    let tick = compute_counts[5..]
+        .iter()
+        .map(|c| c.0)
+        .max()
+        .expect("ticks");
+    let step = policy_steps.iter().map(|c| c.0).max().expect("steps");
+    println!("cnn: a computing tick allocates {tick} times, a policy step {step} times");
+    assert_eq!(tick, step);
+}
