@@ -1,9 +1,19 @@
 //! # dribble-sim
 //!
-//! The simulator harness that stands in for SimRobot: the SPL field, physics, the two Nao
-//! cameras, the expert, the episode runner, the recorder and the evaluator. It depends on
-//! `dribble-controller`'s public types (frames, commands, the policy trait), never the reverse.
-//!
-//! Today it holds the field geometry of DESIGN.md; physics and rendering build on it.
+//! The simulator harness that stands in for SimRobot: the SPL field in rapier3d physics
+//! ([`world`]), a B-Human-like walk ([`walk`]), the Nao's two head cameras rendered headless
+//! with wgpu ([`render`], [`camera_model`], [`camera_geometry`]), and pictures for people
+//! ([`top_view`], [`image_output`]). It depends on `dribble-controller`'s public types
+//! (frames, commands), never the reverse.
 
+pub mod camera_geometry;
+pub mod camera_model;
+pub mod episode;
 pub mod field;
+pub mod image_output;
+pub mod pose;
+pub mod render;
+pub mod simulation;
+pub mod top_view;
+pub mod walk;
+pub mod world;

@@ -1,0 +1,219 @@
+//! The rendered cameras agree with the pinhole model, are reproducible, and show what a
+//! robot needs to see. Needs a wgpu adapter: lavapipe (mesa-vulkan-drivers) on CPU machines.
+
+use std::hash::{DefaultHasher, Hash, Hasher};
+
+use dribble_controller::{BottomFrame, CameraFrame, CameraPosition, SpeedCommand, TopFrame};
+use dribble_sim::camera_geometry::CameraGeometry;
+use dribble_sim::camera_model::{CameraModel, Pixel};
+use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::field::FieldGeometry;
+use dribble_sim::pose::FieldPose;
+use dribble_sim::render::{Renderer, SceneState};
+use dribble_sim::simulation::Simulation;
+use dribble_sim::walk::{HeadSway, WalkConfig};
+use dribble_sim::world::WorldConfig;
+use glam::{Quat, Vec3};
+
+fn renderer() -> Renderer {
+    Renderer::new(
+        &FieldGeometry::SPL,
+        WorldConfig::default().goal_depth,
+        &CameraGeometry::nao(),
+    )
+    .unwrap_or_else(|error| panic!("{error}"))
+}
+
+fn camera(position: CameraPosition, pose: FieldPose) -> CameraModel {
+    CameraModel::new(
+        CameraGeometry::nao().mount(position),
+        pose,
+        HeadSway::default(),
+    )
+}
+
+/// Centroid of the pixels whose luma changes when the ball is added to the scene.
+fn ball_centroid<const W: usize, const H: usize>(
+    renderer: &mut Renderer,
+    position: CameraPosition,
+    camera: &CameraModel,
+    ball: Vec3,
+) -> Pixel {
+    let mut with = CameraFrame::<W, H>::new_boxed();
+    let mut without = CameraFrame::<W, H>::new_boxed();
+    let scene = SceneState {
+        ball: Some((ball, Quat::IDENTITY)),
+    };
+    renderer
+        .render(position, camera, &scene, &mut with)
+        .expect("render");
+    renderer
+        .render(position, camera, &SceneState { ball: None }, &mut without)
+        .expect("render");
+    let (mut sum_u, mut sum_v, mut weight) = (0.0f64, 0.0f64, 0.0f64);
+    for y in 0..H {
+        for x in 0..W {
+            let difference = (f64::from(with.luma(x, y)) - f64::from(without.luma(x, y))).abs();
+            if difference > 8.0 {
+                sum_u += x as f64 + 0.5;
+                sum_v += y as f64 + 0.5;
+                weight += 1.0;
+            }
+        }
+    }
+    assert!(weight > 20.0, "the ball covers only {weight} pixels");
+    Pixel {
+        u: (sum_u / weight) as f32,
+        v: (sum_v / weight) as f32,
+    }
+}
+
+#[test]
+fn the_ball_appears_where_the_pinhole_model_puts_it_in_both_cameras() {
+    let mut renderer = renderer();
+    let robot = FieldPose::new(-2.0, 1.5, 0.2);
+    let cases = [
+        (CameraPosition::Top, Vec3::new(-0.9, 1.9, 0.05)),
+        (CameraPosition::Top, Vec3::new(-0.3, 1.5, 0.05)),
+        (CameraPosition::Bottom, Vec3::new(-1.45, 1.6, 0.05)),
+        (CameraPosition::Bottom, Vec3::new(-1.55, 1.45, 0.05)),
+    ];
+    for (position, ball) in cases {
+        let camera = camera(position, robot);
+        let predicted = camera.project(ball).expect("in front");
+        assert!(
+            camera.contains(predicted),
+            "{position}: {predicted:?} is off the image"
+        );
+        let seen = match position {
+            CameraPosition::Top => {
+                ball_centroid::<640, 480>(&mut renderer, position, &camera, ball)
+            }
+            CameraPosition::Bottom => {
+                ball_centroid::<320, 240>(&mut renderer, position, &camera, ball)
+            }
+        };
+        let error = ((seen.u - predicted.u).powi(2) + (seen.v - predicted.v).powi(2)).sqrt();
+        println!("{position}: predicted {predicted:?}, rendered {seen:?}, {error:.2} px apart");
+        assert!(
+            error <= 2.0,
+            "{position}: {error} px between model and image"
+        );
+    }
+}
+
+fn frame_hash<const W: usize, const H: usize>(frame: &CameraFrame<W, H>) -> u64 {
+    let mut hasher = DefaultHasher::new();
+    frame.as_bytes().hash(&mut hasher);
+    hasher.finish()
+}
+
+/// Walks an episode for a second and hashes every frame the cameras deliver.
+fn episode_frame_hashes(seed: u64) -> Vec<u64> {
+    let mut renderer = renderer();
+    let mut simulation = Simulation::new(
+        &EpisodeSetup::from_seed(seed),
+        WorldConfig::default(),
+        WalkConfig::default(),
+        CameraGeometry::nao(),
+    );
+    simulation.set_command(SpeedCommand::new(0.8, 0.2, 0.4).expect("finite"));
+    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    let mut hashes = Vec::new();
+    for _ in 0..300 {
+        let Some(position) = simulation.step() else {
+            continue;
+        };
+        let camera = simulation.camera(position);
+        let scene = simulation.scene();
+        let hash = match position {
+            CameraPosition::Top => {
+                renderer
+                    .render(position, &camera, &scene, &mut top)
+                    .expect("render");
+                frame_hash(&top)
+            }
+            CameraPosition::Bottom => {
+                renderer
+                    .render(position, &camera, &scene, &mut bottom)
+                    .expect("render");
+                frame_hash(&bottom)
+            }
+        };
+        hashes.push(hash);
+    }
+    hashes
+}
+
+#[test]
+fn the_same_seed_renders_identical_frames() {
+    let first = episode_frame_hashes(10_004);
+    let second = episode_frame_hashes(10_004);
+    assert_eq!(first.len(), 60);
+    assert_eq!(first, second);
+    let other = episode_frame_hashes(10_005);
+    assert_ne!(first, other);
+}
+
+#[test]
+fn the_top_camera_sees_the_goal_from_the_centre_spot() {
+    let mut renderer = renderer();
+    let camera = camera(CameraPosition::Top, FieldPose::new(0.0, 0.0, 0.0));
+    let mut frame = TopFrame::new_boxed();
+    renderer
+        .render(
+            CameraPosition::Top,
+            &camera,
+            &SceneState { ball: None },
+            &mut frame,
+        )
+        .expect("render");
+    let luma = |point: Vec3| {
+        let pixel = camera.project(point).expect("ahead");
+        assert!(camera.contains(pixel), "{point} is outside the image");
+        frame.luma(pixel.u as usize, pixel.v as usize)
+    };
+    for y in [-0.8, 0.8] {
+        let post = luma(Vec3::new(4.5, y, 0.4));
+        let beside = luma(Vec3::new(4.5, y * 1.4, 0.4));
+        println!("post at y={y}: luma {post}; beside it: {beside}");
+        assert!(post >= 140, "the post at y={y} is not bright: {post}");
+        assert!(
+            post >= beside + 40,
+            "the post does not stand out: {post} vs {beside}"
+        );
+    }
+    let crossbar = luma(Vec3::new(4.5, 0.0, 0.75));
+    assert!(crossbar >= 140, "crossbar luma {crossbar}");
+}
+
+#[test]
+fn a_line_five_metres_away_is_still_visible() {
+    let mut renderer = renderer();
+    let camera = camera(CameraPosition::Top, FieldPose::new(-0.5, 0.0, 0.0));
+    let mut frame = TopFrame::new_boxed();
+    renderer
+        .render(
+            CameraPosition::Top,
+            &camera,
+            &SceneState { ball: None },
+            &mut frame,
+        )
+        .expect("render");
+    // The goal line, 5 m ahead, beside the goal; and carpet 0.3 m in front of it.
+    for y in [-1.5f32, 1.5, 2.5] {
+        let line = camera.project(Vec3::new(4.475, y, 0.0)).expect("ahead");
+        let carpet = camera.project(Vec3::new(4.2, y, 0.0)).expect("ahead");
+        let column = line.u as usize;
+        let brightest = (line.v as usize - 2..=line.v as usize + 2)
+            .map(|v| frame.luma(column, v))
+            .max()
+            .unwrap_or(0);
+        let carpet_luma = frame.luma(carpet.u as usize, carpet.v as usize);
+        println!("y={y}: line luma {brightest}, carpet {carpet_luma}");
+        assert!(
+            brightest >= carpet_luma + 30,
+            "the line at y={y} fades into the carpet: {brightest} vs {carpet_luma}"
+        );
+    }
+}
