@@ -1,8 +1,13 @@
 //! `dribble`: the project's command-line tool: look at the simulated cameras, inspect raw
 //! frames. Recording and evaluation (`record`, `eval`, `inspect`) come with the expert.
 
+mod episodes;
+mod eval_command;
+mod inspect_command;
+mod record_command;
 mod render_command;
 mod thumbnail_command;
+mod trajectory_plot;
 
 use clap::{Parser, Subcommand};
 
@@ -23,11 +28,24 @@ enum Command {
     /// and writes PNGs: each camera image, the thumbnails the policy sees, and a top-down view
     /// of the field with the robot, its cameras' view and the ball.
     Render(render_command::RenderArgs),
+    /// Plays episodes in closed loop with the expert or a learned policy and prints, per
+    /// episode, the outcome, the time and the distance walked; then the goal count, the
+    /// controller's latency, and writes a trajectory plot.
+    Eval(eval_command::EvalArgs),
+    /// Records the expert's demonstrations: the cameras are rendered, every computed command
+    /// is stored with the thumbnails it came from, one .npz per episode plus dataset.json.
+    Record(record_command::RecordArgs),
+    /// Checks a recorded dataset and summarises it: counts, outcomes, phases, a histogram
+    /// picture of the commands and phases, and a contact sheet of sample thumbnails.
+    Inspect(inspect_command::InspectArgs),
 }
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Thumbnail(args) => thumbnail_command::run(&args),
         Command::Render(args) => render_command::run(&args),
+        Command::Eval(args) => eval_command::run(&args),
+        Command::Record(args) => record_command::run(&args),
+        Command::Inspect(args) => inspect_command::run(&args),
     }
 }

@@ -80,6 +80,18 @@ impl TickStats {
         }
     }
 
+    /// Adds `other`'s ticks to these (same budget assumed: overruns are added as counted).
+    pub fn merge(&mut self, other: &TickStats) {
+        for (mine, theirs) in self.counts.iter_mut().zip(other.counts.iter()) {
+            *mine += theirs;
+        }
+        self.ticks += other.ticks;
+        self.total_nanos += other.total_nanos;
+        self.min_nanos = self.min_nanos.min(other.min_nanos);
+        self.max_nanos = self.max_nanos.max(other.max_nanos);
+        self.overruns += other.overruns;
+    }
+
     pub fn ticks(&self) -> u64 {
         self.ticks
     }
@@ -194,6 +206,27 @@ mod tests {
         let summary = stats.summary().expect("ticks recorded");
         assert_eq!(summary.max, Duration::from_micros(2001));
         assert_eq!(summary.min, Duration::from_micros(1999));
+    }
+
+    #[test]
+    fn merging_is_recording_everything_in_one() {
+        let budget = Duration::from_millis(2);
+        let (mut a, mut b, mut all) = (
+            TickStats::new(budget),
+            TickStats::new(budget),
+            TickStats::new(budget),
+        );
+        for (i, micros) in [5u64, 3000, 40, 700, 90, 2500].into_iter().enumerate() {
+            let d = Duration::from_micros(micros);
+            if i % 2 == 0 {
+                a.record(d)
+            } else {
+                b.record(d)
+            }
+            all.record(d);
+        }
+        a.merge(&b);
+        assert_eq!(a.summary(), all.summary());
     }
 
     #[test]

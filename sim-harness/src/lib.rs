@@ -8,12 +8,16 @@
 
 pub mod camera_geometry;
 pub mod camera_model;
+pub mod dataset;
 pub mod episode;
+pub mod expert;
 pub mod field;
 pub mod image_output;
 pub mod pose;
 pub mod render;
+pub mod runner;
 pub mod simulation;
+pub mod text;
 pub mod top_view;
 pub mod walk;
 pub mod world;

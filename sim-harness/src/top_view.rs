@@ -32,16 +32,7 @@ impl FieldCanvas {
         let width = (2.0 * half_extent.x * pixels_per_metre).round() as u32;
         let height = (2.0 * half_extent.y * pixels_per_metre).round() as u32;
         let mut canvas = Self {
-            image: RgbImage {
-                width,
-                height,
-                pixels: CARPET
-                    .iter()
-                    .copied()
-                    .cycle()
-                    .take((width * height * 3) as usize)
-                    .collect(),
-            },
+            image: RgbImage::filled(width, height, CARPET),
             pixels_per_metre,
             half_extent,
         };
@@ -88,11 +79,12 @@ impl FieldCanvas {
     }
 
     fn put(&mut self, x: i64, y: i64, colour: [u8; 3]) {
-        if x < 0 || y < 0 || x >= i64::from(self.image.width) || y >= i64::from(self.image.height) {
-            return;
-        }
-        let i = ((y as usize) * self.image.width as usize + x as usize) * 3;
-        self.image.pixels[i..i + 3].copy_from_slice(&colour);
+        self.image.put(x, y, colour);
+    }
+
+    /// The picture drawn so far, to add labels to.
+    pub fn image_mut(&mut self) -> &mut RgbImage {
+        &mut self.image
     }
 
     /// A filled disc of `radius` metres.

@@ -1,0 +1,351 @@
+//! Recorded demonstrations (DESIGN.md, "Dataset"): one compressed NumPy `.npz` per episode,
+//! one row per computed command, and a `dataset.json` index beside them.
+//!
+//! Files are written byte for byte the same for the same episode (fixed zip timestamps,
+//! deterministic deflate), to a temporary name first and renamed when complete, so an
+//! interrupted recording never leaves a half-written episode behind.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::io::{Cursor, Read, Write};
+use std::path::{Path, PathBuf};
+
+use dribble_controller::{BottomThumbnail, SpeedCommand, TopThumbnail};
+use serde::{Deserialize, Serialize};
+
+use crate::expert::Phase;
+use crate::pose::FieldPose;
+
+/// A dataset file could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+}
+
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+    move |source| DatasetError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// The rows of one episode, in memory until the episode ends.
+#[derive(Clone, Debug, Default)]
+pub struct EpisodeRecording {
+    top: Vec<u8>,
+    bottom: Vec<u8>,
+    command: Vec<f32>,
+    robot_pose: Vec<f32>,
+    ball: Vec<f32>,
+    time_s: Vec<f64>,
+    phase: Vec<u8>,
+}
+
+/// One computed command and what it was computed from.
+#[derive(Clone, Copy, Debug)]
+pub struct Row<'a> {
+    pub top: &'a TopThumbnail,
+    pub bottom: &'a BottomThumbnail,
+    pub command: SpeedCommand,
+    pub robot: FieldPose,
+    pub ball: glam::Vec2,
+    pub time_s: f64,
+    pub phase: Phase,
+}
+
+impl EpisodeRecording {
+    pub fn push(&mut self, row: Row<'_>) {
+        self.top.extend_from_slice(row.top.as_bytes());
+        self.bottom.extend_from_slice(row.bottom.as_bytes());
+        self.command.extend_from_slice(&row.command.as_array());
+        self.robot_pose
+            .extend_from_slice(&[row.robot.x, row.robot.y, row.robot.theta]);
+        self.ball.extend_from_slice(&[row.ball.x, row.ball.y]);
+        self.time_s.push(row.time_s);
+        self.phase.push(row.phase as u8);
+    }
+
+    pub fn rows(&self) -> usize {
+        self.time_s.len()
+    }
+
+    /// The episode as `.npz` bytes: `top` u8[T,120,160], `bottom` u8[T,60,80], `command`
+    /// f32[T,3], `robot_pose` f32[T,3], `ball` f32[T,2], `time_s` f64[T], `phase` u8[T].
+    pub fn to_npz(&self) -> Vec<u8> {
+        let t = self.rows();
+        let f32_bytes = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+        let f64_bytes = |v: &[f64]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+        let arrays: [(&str, &str, Vec<usize>, Vec<u8>); 7] = [
+            ("top", "|u1", vec![t, 120, 160], self.top.clone()),
+            ("bottom", "|u1", vec![t, 60, 80], self.bottom.clone()),
+            ("command", "<f4", vec![t, 3], f32_bytes(&self.command)),
+            ("robot_pose", "<f4", vec![t, 3], f32_bytes(&self.robot_pose)),
+            ("ball", "<f4", vec![t, 2], f32_bytes(&self.ball)),
+            ("time_s", "<f8", vec![t], f64_bytes(&self.time_s)),
+            ("phase", "|u1", vec![t], self.phase.clone()),
+        ];
+        let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
+        let options = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Deflated)
+            .last_modified_time(zip::DateTime::default());
+        for (name, descr, shape, data) in arrays {
+            // Writing to memory cannot fail.
+            let _ = zip.start_file(format!("{name}.npy"), options);
+            let _ = zip.write_all(&npy(descr, &shape, &data));
+        }
+        zip.finish().map(Cursor::into_inner).unwrap_or_default()
+    }
+
+    /// Writes the episode to `path` through a temporary file.
+    pub fn write(&self, path: &Path) -> Result<u64, DatasetError> {
+        let bytes = self.to_npz();
+        write_atomically(path, &bytes)?;
+        Ok(bytes.len() as u64)
+    }
+}
+
+/// A `.npy` (format 1.0) holding `data` as `descr` of `shape`, C order.
+fn npy(descr: &str, shape: &[usize], data: &[u8]) -> Vec<u8> {
+    let dims = match shape {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {dims}, }}");
+    // Magic (6) + version (2) + length (2) + header, padded with spaces to 64 bytes, then \n.
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + data.len());
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend_from_slice(data);
+    bytes
+}
+
+/// An array read back from a `.npz`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NpyArray {
+    pub descr: String,
+    pub shape: Vec<usize>,
+    pub data: Vec<u8>,
+}
+
+impl NpyArray {
+    pub fn as_f32(&self) -> Vec<f32> {
+        self.data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    }
+}
+
+/// Reads every array of a `.npz` written by [`EpisodeRecording::write`].
+pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>, DatasetError> {
+    let format = |message: String| DatasetError::Format {
+        path: path.to_owned(),
+        message,
+    };
+    let bytes = fs::read(path).map_err(io_error(path))?;
+    let mut archive =
+        zip::ZipArchive::new(Cursor::new(bytes)).map_err(|e| format(e.to_string()))?;
+    let mut arrays = BTreeMap::new();
+    for i in 0..archive.len() {
+        let mut file = archive.by_index(i).map_err(|e| format(e.to_string()))?;
+        let name = file
+            .name()
+            .map_err(|e| format(e.to_string()))?
+            .trim_end_matches(".npy")
+            .to_owned();
+        let mut raw = Vec::new();
+        file.read_to_end(&mut raw).map_err(io_error(path))?;
+        arrays.insert(
+            name.clone(),
+            parse_npy(&raw).map_err(|m| format(format!("{name}: {m}")))?,
+        );
+    }
+    Ok(arrays)
+}
+
+fn parse_npy(raw: &[u8]) -> Result<NpyArray, String> {
+    if raw.len() < 10 || &raw[..6] != b"\x93NUMPY" {
+        return Err("not a .npy array".into());
+    }
+    let header_len = usize::from(u16::from_le_bytes([raw[8], raw[9]]));
+    let header = std::str::from_utf8(raw.get(10..10 + header_len).ok_or("truncated header")?)
+        .map_err(|e| e.to_string())?;
+    let field = |key: &str| -> Result<&str, String> {
+        let start = header.find(key).ok_or(format!("no {key} in {header}"))? + key.len();
+        Ok(header[start..].trim_start_matches([':', ' ', '\'']))
+    };
+    let descr = field("'descr'")?
+        .split('\'')
+        .next()
+        .unwrap_or("")
+        .to_owned();
+    let shape_text = field("'shape'")?;
+    let shape_text = &shape_text[1..shape_text.find(')').ok_or("bad shape")?];
+    let shape = shape_text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| s.parse::<usize>().map_err(|e| e.to_string()))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(NpyArray {
+        descr,
+        shape,
+        data: raw[10 + header_len..].to_vec(),
+    })
+}
+
+/// How an episode ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Goal,
+    BallOut,
+    TimeLimit,
+}
+
+impl Outcome {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Goal => "goal",
+            Self::BallOut => "ball out",
+            Self::TimeLimit => "time limit",
+        }
+    }
+}
+
+/// One episode in `dataset.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeEntry {
+    pub seed: u64,
+    pub file: String,
+    pub outcome: Outcome,
+    pub rows: usize,
+    pub duration_s: f64,
+    pub bytes: u64,
+}
+
+/// `dataset.json`: the episodes and how they were made.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetIndex {
+    pub format: u32,
+    pub project_version: String,
+    pub simulator: serde_json::Value,
+    pub expert: serde_json::Value,
+    pub episodes: Vec<EpisodeEntry>,
+}
+
+impl DatasetIndex {
+    pub const FILE: &'static str = "dataset.json";
+
+    pub fn load(directory: &Path) -> Result<Option<Self>, DatasetError> {
+        let path = directory.join(Self::FILE);
+        match fs::read_to_string(&path) {
+            Ok(text) => serde_json::from_str(&text)
+                .map(Some)
+                .map_err(|e| DatasetError::Format {
+                    path,
+                    message: e.to_string(),
+                }),
+            Err(error) if error.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(source) => Err(DatasetError::Io { path, source }),
+        }
+    }
+
+    pub fn save(&self, directory: &Path) -> Result<(), DatasetError> {
+        let path = directory.join(Self::FILE);
+        let text = serde_json::to_string_pretty(self).map_err(|e| DatasetError::Format {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
+        write_atomically(&path, format!("{text}\n").as_bytes())
+    }
+
+    /// Records `entry`, replacing an earlier entry of the same seed; keeps seed order.
+    pub fn insert(&mut self, entry: EpisodeEntry) {
+        self.episodes.retain(|e| e.seed != entry.seed);
+        self.episodes.push(entry);
+        self.episodes.sort_by_key(|e| e.seed);
+    }
+}
+
+/// The file name of an episode.
+pub fn episode_file(seed: u64) -> String {
+    format!("episode_{seed:05}.npz")
+}
+
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
+    let temporary = path.with_extension("partial");
+    let mut file = fs::File::create(&temporary).map_err(io_error(&temporary))?;
+    file.write_all(bytes).map_err(io_error(&temporary))?;
+    file.sync_all().map_err(io_error(&temporary))?;
+    fs::rename(&temporary, path).map_err(io_error(path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn npy_headers_are_64_byte_aligned_and_parse_back() {
+        let bytes = npy("<f4", &[2, 3], &[0; 24]);
+        let header_end = 10 + usize::from(u16::from_le_bytes([bytes[8], bytes[9]]));
+        assert_eq!(header_end % 64, 0);
+        assert_eq!(bytes[header_end - 1], b'\n');
+        let array = parse_npy(&bytes).expect("parses");
+        assert_eq!(array.descr, "<f4");
+        assert_eq!(array.shape, vec![2, 3]);
+        let one_dimensional = parse_npy(&npy("<f8", &[5], &[0; 40])).expect("parses");
+        assert_eq!(one_dimensional.shape, vec![5]);
+    }
+
+    #[test]
+    fn an_episode_round_trips_and_is_byte_identical() {
+        let mut recording = EpisodeRecording::default();
+        let (mut top, bottom) = (TopThumbnail::black(), BottomThumbnail::black());
+        top.as_bytes_mut()[7] = 99;
+        for i in 0..3 {
+            recording.push(Row {
+                top: &top,
+                bottom: &bottom,
+                command: SpeedCommand::new(0.5, -0.25, i as f32 * 0.1).expect("finite"),
+                robot: FieldPose::new(1.0, 2.0, 0.5),
+                ball: glam::Vec2::new(3.0, -1.0),
+                time_s: f64::from(i) / 30.0,
+                phase: Phase::Dribble,
+            });
+        }
+        let directory = std::env::temp_dir().join(format!("dribble-npz-{}", std::process::id()));
+        fs::create_dir_all(&directory).expect("dir");
+        let path = directory.join(episode_file(7));
+        recording.write(&path).expect("write");
+        assert_eq!(
+            recording.to_npz(),
+            fs::read(&path).expect("read"),
+            "byte-identical"
+        );
+        let arrays = read_npz(&path).expect("read back");
+        assert_eq!(arrays["top"].shape, vec![3, 120, 160]);
+        assert_eq!(arrays["top"].data[7], 99);
+        assert_eq!(arrays["command"].as_f32()[..3], [0.5, -0.25, 0.0]);
+        assert_eq!(arrays["phase"].data, vec![3, 3, 3]);
+        assert_eq!(arrays["time_s"].descr, "<f8");
+        fs::remove_dir_all(directory).expect("clean up");
+    }
+}

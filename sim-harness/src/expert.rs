@@ -1,0 +1,276 @@
+//! The teacher: a B-Human-style striker with ground truth. A small state machine over the
+//! robot's and the ball's true poses: search (turn until the ball is in the top camera's
+//! view), approach (walk to a point behind the ball on the ball-to-goal line, going around
+//! the ball if the robot is on its wrong side), align (circle the ball until facing the
+//! goal), dribble (walk through the ball toward the goal, correcting sideways).
+
+use core::f32::consts::PI;
+
+use dribble_controller::SpeedCommand;
+use glam::Vec2;
+
+use crate::field::FieldGeometry;
+use crate::pose::{FieldPose, wrap_angle};
+
+/// The expert's sub-behaviour, recorded with every command (DESIGN.md, "Dataset").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum Phase {
+    Search = 0,
+    Approach = 1,
+    Align = 2,
+    Dribble = 3,
+}
+
+impl Phase {
+    pub const ALL: [Self; 4] = [Self::Search, Self::Approach, Self::Align, Self::Dribble];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Search => "search",
+            Self::Approach => "approach",
+            Self::Align => "align",
+            Self::Dribble => "dribble",
+        }
+    }
+}
+
+/// The expert's tuning. Distances in metres, angles in radians.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExpertConfig {
+    /// Half the angle around the heading within which the ball counts as seen.
+    pub view_half_angle: f32,
+    /// How far behind the ball (away from the goal) the approach point lies.
+    pub approach_distance: f32,
+    /// Within this of the approach point, the expert starts aligning.
+    pub approach_tolerance: f32,
+    /// Distance kept from the ball when going around it.
+    pub detour_radius: f32,
+    /// Heading error to the goal below which dribbling starts.
+    pub align_tolerance: f32,
+    /// Lateral offset of the ball (robot frame) beyond which a dribble is given up.
+    pub dribble_lateral_limit: f32,
+    /// Forward speed while dribbling, normalised.
+    pub dribble_speed: f32,
+}
+
+impl Default for ExpertConfig {
+    fn default() -> Self {
+        Self {
+            view_half_angle: 25f32.to_radians(),
+            approach_distance: 0.28,
+            approach_tolerance: 0.08,
+            detour_radius: 0.4,
+            align_tolerance: 10f32.to_radians(),
+            dribble_lateral_limit: 0.12,
+            dribble_speed: 0.9,
+        }
+    }
+}
+
+/// What the expert knows: the truth.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GroundTruth {
+    pub robot: FieldPose,
+    pub ball: Vec2,
+    /// +1 to attack the goal at +x, -1 for the one at -x.
+    pub target_side: f32,
+}
+
+/// The striker.
+#[derive(Clone, Debug)]
+pub struct Expert {
+    config: ExpertConfig,
+    field: FieldGeometry,
+    phase: Phase,
+}
+
+impl Expert {
+    pub fn new(config: ExpertConfig, field: FieldGeometry) -> Self {
+        Self {
+            config,
+            field,
+            phase: Phase::Search,
+        }
+    }
+
+    pub fn config(&self) -> &ExpertConfig {
+        &self.config
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Starts an episode afresh.
+    pub fn reset(&mut self) {
+        self.phase = Phase::Search;
+    }
+
+    /// The next command, and the phase that produced it.
+    pub fn decide(&mut self, truth: &GroundTruth) -> (SpeedCommand, Phase) {
+        let robot = truth.robot;
+        let ball = robot.to_robot(truth.ball.extend(0.0)).0.truncate();
+        let ball_bearing = ball.y.atan2(ball.x);
+        let goal = Vec2::new(truth.target_side * self.field.length / 2.0, 0.0);
+        let to_goal = (goal - truth.ball).normalize_or(Vec2::X);
+        let behind_ball = truth.ball - to_goal * self.config.approach_distance;
+        let behind = robot.to_robot(behind_ball.extend(0.0)).0.truncate();
+        let goal_heading = to_goal.y.atan2(to_goal.x);
+        let heading_error = wrap_angle(goal_heading - robot.theta);
+
+        self.phase = self.next_phase(ball, ball_bearing, behind, heading_error);
+        let command = match self.phase {
+            Phase::Search => search(ball_bearing),
+            Phase::Approach => self.approach(truth, ball, behind_ball, to_goal),
+            Phase::Align => self.align(ball, behind, heading_error),
+            Phase::Dribble => self.dribble(truth, ball, goal),
+        };
+        (command, self.phase)
+    }
+
+    fn next_phase(&self, ball: Vec2, ball_bearing: f32, behind: Vec2, heading_error: f32) -> Phase {
+        let c = &self.config;
+        let seen = ball_bearing.abs() < c.view_half_angle;
+        let lost = ball_bearing.abs() > c.view_half_angle * 2.4 && ball.length() > 0.5;
+        match self.phase {
+            Phase::Search if seen => Phase::Approach,
+            Phase::Search => Phase::Search,
+            _ if lost => Phase::Search,
+            Phase::Approach if behind.length() < c.approach_tolerance => Phase::Align,
+            Phase::Approach => Phase::Approach,
+            Phase::Align if behind.length() > c.approach_tolerance * 3.0 => Phase::Approach,
+            Phase::Align
+                if heading_error.abs() < c.align_tolerance
+                    && ball.y.abs() < c.dribble_lateral_limit * 0.5 =>
+            {
+                Phase::Dribble
+            }
+            Phase::Align => Phase::Align,
+            Phase::Dribble
+                if ball.y.abs() > c.dribble_lateral_limit
+                    || ball.x < 0.05
+                    || ball.x > 0.7
+                    || heading_error.abs() > 3.0 * c.align_tolerance =>
+            {
+                Phase::Approach
+            }
+            Phase::Dribble => Phase::Dribble,
+        }
+    }
+
+    /// Walk to the point behind the ball, going around the ball when the robot is on its
+    /// goal side, facing the ball.
+    fn approach(
+        &self,
+        truth: &GroundTruth,
+        ball: Vec2,
+        behind_ball: Vec2,
+        to_goal: Vec2,
+    ) -> SpeedCommand {
+        let robot = truth.robot;
+        let position = Vec2::new(robot.x, robot.y);
+        let from_ball = position - truth.ball;
+        // Ahead of the ball (on the goal side) or level with it: go around, not through.
+        let along = from_ball.dot(to_goal);
+        let target = if along > -self.config.approach_distance * 0.5
+            && from_ball.length() < self.config.detour_radius * 2.5
+        {
+            // Around the side of the ball-to-goal line the robot is on.
+            let side = if to_goal.perp_dot(from_ball) >= 0.0 {
+                to_goal.perp()
+            } else {
+                -to_goal.perp()
+            };
+            truth.ball + (side - to_goal * 0.6).normalize_or_zero() * self.config.detour_radius
+        } else {
+            behind_ball
+        };
+        let local = robot.to_robot(target.extend(0.0)).0.truncate();
+        let face = ball.y.atan2(ball.x);
+        walk_towards(local, face, 1.0)
+    }
+
+    /// Circle the ball: turn toward the goal, step sideways to keep the ball ahead, and keep
+    /// the approach distance.
+    fn align(&self, ball: Vec2, behind: Vec2, heading_error: f32) -> SpeedCommand {
+        let distance_error = ball.x - self.config.approach_distance;
+        let turn = (heading_error * 1.6).clamp(-1.0, 1.0);
+        let forward = (distance_error * 3.0).clamp(-0.5, 0.5);
+        // Sidestep opposite to the turn so that the robot orbits the ball, plus keep it centred.
+        let left = (-turn * 0.35 + ball.y * 4.0 + behind.y * 2.0).clamp(-1.0, 1.0);
+        command(forward, left, turn)
+    }
+
+    /// Walk through the ball toward the goal, keeping it in front of the feet.
+    fn dribble(&self, truth: &GroundTruth, ball: Vec2, goal: Vec2) -> SpeedCommand {
+        let robot = truth.robot;
+        let goal_local = robot.to_robot(goal.extend(0.0)).0.truncate();
+        let goal_bearing = goal_local.y.atan2(goal_local.x);
+        let turn = (goal_bearing * 1.5).clamp(-0.6, 0.6);
+        let left = (ball.y * 5.0).clamp(-0.6, 0.6);
+        command(self.config.dribble_speed, left, turn)
+    }
+}
+
+/// Turn on the spot toward the ball (ground truth tells which way is shorter).
+fn search(ball_bearing: f32) -> SpeedCommand {
+    command(0.0, 0.0, if ball_bearing >= 0.0 { 1.0 } else { -1.0 })
+}
+
+/// Omnidirectional walk to `target` (robot frame) while turning to `face` (radians).
+fn walk_towards(target: Vec2, face: f32, speed: f32) -> SpeedCommand {
+    let distance = target.length();
+    let direction = target.normalize_or_zero();
+    let gain = (distance * 2.5).min(1.0) * speed;
+    // Walking forward is faster than sideways: prefer it when the target is ahead.
+    let turn = (face * 1.5).clamp(-1.0, 1.0);
+    let slow_for_turn = 1.0 - 0.6 * (face.abs() / PI).min(1.0);
+    command(
+        direction.x * gain * slow_for_turn,
+        direction.y * gain * 1.2,
+        turn,
+    )
+}
+
+fn command(forward: f32, left: f32, turn: f32) -> SpeedCommand {
+    SpeedCommand::new(forward, left, turn).unwrap_or(SpeedCommand::STOP)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn truth(robot: FieldPose, ball: Vec2) -> GroundTruth {
+        GroundTruth {
+            robot,
+            ball,
+            target_side: 1.0,
+        }
+    }
+
+    #[test]
+    fn searches_by_turning_toward_an_unseen_ball() {
+        let mut expert = Expert::new(ExpertConfig::default(), FieldGeometry::SPL);
+        let (command, phase) =
+            expert.decide(&truth(FieldPose::new(0.0, 0.0, 0.0), Vec2::new(0.0, 2.0)));
+        assert_eq!(phase, Phase::Search);
+        assert_eq!(command.as_array(), [0.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn approaches_a_seen_ball_and_dribbles_when_lined_up() {
+        let mut expert = Expert::new(ExpertConfig::default(), FieldGeometry::SPL);
+        let (command, phase) =
+            expert.decide(&truth(FieldPose::new(0.0, 0.0, 0.0), Vec2::new(2.0, 0.1)));
+        assert_eq!(phase, Phase::Approach);
+        assert!(command.forward() > 0.5);
+        // Right behind the ball, facing the goal.
+        let lined_up = truth(FieldPose::new(1.72, 0.0, 0.0), Vec2::new(2.0, 0.0));
+        let (_, phase) = expert.decide(&lined_up);
+        assert_eq!(phase, Phase::Align);
+        let (command, phase) = expert.decide(&lined_up);
+        assert_eq!(phase, Phase::Dribble);
+        assert!(command.forward() > 0.8);
+    }
+}

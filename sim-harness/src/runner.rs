@@ -1,0 +1,258 @@
+//! Runs the paper's episodes in lock-step: physics, cameras, the controller's tick, the
+//! walk. A driver is the expert (with ground truth) or any `Policy`; both go through the
+//! controller's own `ControlLoop`, so a command is computed exactly when the robot would
+//! compute one (both cameras new) and repeated otherwise, from thumbnails made by the
+//! robot's own code.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::time::Instant;
+
+use dribble_controller::tick_stats::TickStats;
+use dribble_controller::{
+    BottomFrame, CameraInput, CameraPosition, Clock, ControlLoop, LoopConfig, ManualClock, Policy,
+    PolicyError, PolicyInput, PolicyOutput, TopFrame,
+};
+use glam::Vec2;
+
+use crate::camera_geometry::CameraGeometry;
+use crate::dataset::{EpisodeRecording, Outcome, Row};
+use crate::episode::EpisodeSetup;
+use crate::expert::{Expert, GroundTruth, Phase};
+use crate::render::{RenderError, Renderer};
+use crate::simulation::{STEPS_PER_MOTION_CYCLE, Simulation};
+use crate::walk::WalkConfig;
+use crate::world::{STEPS_PER_SECOND, WorldConfig};
+
+/// How episodes are run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EpisodeConfig {
+    pub time_limit_s: f32,
+    pub world: WorldConfig,
+    pub walk: WalkConfig,
+    pub cameras: CameraGeometry,
+    pub control: LoopConfig,
+}
+
+impl Default for EpisodeConfig {
+    fn default() -> Self {
+        Self {
+            time_limit_s: 90.0,
+            world: WorldConfig::default(),
+            walk: WalkConfig::default(),
+            cameras: CameraGeometry::nao(),
+            control: LoopConfig::default(),
+        }
+    }
+}
+
+/// What an episode did.
+#[derive(Clone, Debug)]
+pub struct EpisodeResult {
+    pub setup: EpisodeSetup,
+    pub outcome: Outcome,
+    /// Simulated seconds until the end.
+    pub duration_s: f32,
+    pub distance_walked_m: f32,
+    /// Robot and ball positions, ten times a second.
+    pub robot_path: Vec<Vec2>,
+    pub ball_path: Vec<Vec2>,
+    /// Commands computed from new camera pairs.
+    pub computed_commands: u64,
+    /// Wall-clock time of each controller tick that computed a command.
+    pub tick_times: TickStats,
+}
+
+/// Shares the truth with the expert inside the control loop, and its phase back.
+#[derive(Debug)]
+struct ExpertChannel {
+    truth: GroundTruth,
+    phase: Phase,
+}
+
+/// The expert as a `Policy`: it ignores the thumbnails and reads the truth the runner
+/// hands it before every tick.
+#[derive(Debug)]
+struct ExpertPolicy {
+    expert: Expert,
+    channel: Rc<RefCell<ExpertChannel>>,
+}
+
+impl Policy for ExpertPolicy {
+    fn step(&mut self, _: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        let mut channel = self.channel.borrow_mut();
+        let (command, phase) = self.expert.decide(&channel.truth);
+        channel.phase = phase;
+        let [forward, left, turn] = command.as_array();
+        Ok(PolicyOutput {
+            forward,
+            left,
+            turn,
+        })
+    }
+
+    fn reset(&mut self) {
+        self.expert.reset();
+    }
+}
+
+/// Who drives the robot.
+pub enum Driver<'a> {
+    /// The scripted expert; it needs no images, but can be given them to record.
+    Expert(Expert),
+    /// A policy that sees the rendered thumbnails.
+    Policy(&'a mut dyn Policy),
+}
+
+impl std::fmt::Debug for Driver<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Expert(expert) => f.debug_tuple("Expert").field(expert).finish(),
+            Self::Policy(_) => f.write_str("Policy"),
+        }
+    }
+}
+
+/// A policy borrowed for one episode.
+struct Borrowed<'a>(&'a mut dyn Policy);
+
+impl Policy for Borrowed<'_> {
+    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        self.0.step(input)
+    }
+
+    fn reset(&mut self) {
+        self.0.reset();
+    }
+}
+
+/// Runs one episode. Images are rendered when a renderer is given (a policy needs one);
+/// rows are recorded when a recording is given.
+pub fn run_episode(
+    setup: &EpisodeSetup,
+    config: &EpisodeConfig,
+    driver: Driver<'_>,
+    mut renderer: Option<&mut Renderer>,
+    mut recording: Option<&mut EpisodeRecording>,
+) -> Result<EpisodeResult, RenderError> {
+    let truth = |simulation: &Simulation| GroundTruth {
+        robot: simulation.world().robot_pose(),
+        ball: simulation.world().ball().position.truncate(),
+        target_side: setup.target_side,
+    };
+    let mut simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
+    let channel = Rc::new(RefCell::new(ExpertChannel {
+        truth: truth(&simulation),
+        phase: Phase::Search,
+    }));
+    let (is_expert, policy): (bool, Box<dyn Policy + '_>) = match driver {
+        Driver::Expert(expert) => (
+            true,
+            Box::new(ExpertPolicy {
+                expert,
+                channel: Rc::clone(&channel),
+            }),
+        ),
+        Driver::Policy(policy) => (false, Box::new(Borrowed(policy))),
+    };
+    let clock = ManualClock::default();
+    let mut control = ControlLoop::new(config.control, policy, clock.clone());
+    control.reset_episode();
+
+    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    let (mut top_new, mut bottom_new) = (false, false);
+    let field = *simulation.world().field();
+    let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
+    let mut tick_times = TickStats::new(config.control.budget);
+    let mut robot_path = Vec::new();
+    let mut ball_path = Vec::new();
+    let mut distance = 0.0;
+    let mut last_position = Vec2::new(setup.robot.x, setup.robot.y);
+    let outcome = loop {
+        if let Some(camera) = simulation.step() {
+            let (sequence, time) = (simulation.frame_sequence(camera), simulation.time());
+            let model = simulation.camera(camera);
+            let scene = simulation.scene();
+            match camera {
+                CameraPosition::Top => {
+                    if let Some(renderer) = renderer.as_deref_mut() {
+                        renderer.render(camera, &model, &scene, &mut top)?;
+                    }
+                    top.restamp(sequence, time);
+                    top_new = true;
+                }
+                CameraPosition::Bottom => {
+                    if let Some(renderer) = renderer.as_deref_mut() {
+                        renderer.render(camera, &model, &scene, &mut bottom)?;
+                    }
+                    bottom.restamp(sequence, time);
+                    bottom_new = true;
+                }
+            }
+        }
+        let steps = simulation.world().steps();
+        let pose = simulation.world().robot_pose();
+        let position = Vec2::new(pose.x, pose.y);
+        distance += (position - last_position).length();
+        last_position = position;
+        if steps.is_multiple_of(STEPS_PER_MOTION_CYCLE) {
+            clock.set(simulation.time());
+            channel.borrow_mut().truth = truth(&simulation);
+            let input = CameraInput {
+                top: top_new.then_some(&*top),
+                bottom: bottom_new.then_some(&*bottom),
+            };
+            (top_new, bottom_new) = (false, false);
+            let started = Instant::now();
+            let command = control.tick(input);
+            let elapsed = started.elapsed();
+            simulation.set_command(command.speed);
+            if command.is_new() {
+                tick_times.record(elapsed);
+                if let Some(recording) = recording.as_deref_mut() {
+                    let (top_thumbnail, bottom_thumbnail) = control.thumbnails();
+                    let truth = channel.borrow().truth;
+                    recording.push(Row {
+                        top: top_thumbnail,
+                        bottom: bottom_thumbnail,
+                        command: command.speed,
+                        robot: truth.robot,
+                        ball: truth.ball,
+                        time_s: control.clock().now().as_nanos() as f64 / 1e9,
+                        phase: if is_expert {
+                            channel.borrow().phase
+                        } else {
+                            Phase::Search
+                        },
+                    });
+                }
+            }
+        }
+        if steps.is_multiple_of(STEPS_PER_SECOND / 10) {
+            robot_path.push(position);
+            ball_path.push(simulation.world().ball().position.truncate());
+        }
+        let ball = simulation.world().ball().position;
+        if field.is_goal(setup.target_side, ball.x, ball.y) {
+            break Outcome::Goal;
+        }
+        if field.is_out(ball.x, ball.y) {
+            break Outcome::BallOut;
+        }
+        if steps >= limit_steps {
+            break Outcome::TimeLimit;
+        }
+    };
+    robot_path.push(last_position);
+    ball_path.push(simulation.world().ball().position.truncate());
+    Ok(EpisodeResult {
+        setup: *setup,
+        outcome,
+        duration_s: simulation.time().as_nanos() as f32 / 1e9,
+        distance_walked_m: distance,
+        robot_path,
+        ball_path,
+        computed_commands: control.counters().new_commands,
+        tick_times,
+    })
+}

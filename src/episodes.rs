@@ -1,0 +1,50 @@
+//! Which episodes a command runs: `train`, `test`, or a range of seeds.
+
+use std::ops::Range;
+use std::str::FromStr;
+
+use dribble_sim::episode::{TEST_SEEDS, TRAINING_SEEDS};
+
+/// A set of episode seeds, as given on the command line.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Episodes(pub Range<u64>);
+
+impl FromStr for Episodes {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        match text {
+            "train" => Ok(Self(TRAINING_SEEDS)),
+            "test" => Ok(Self(TEST_SEEDS)),
+            _ => {
+                let (start, end) = text.split_once("..").ok_or_else(|| {
+                    format!("expected train, test or a seed range like 0..10, got {text:?}")
+                })?;
+                let parse = |s: &str| {
+                    s.trim()
+                        .parse::<u64>()
+                        .map_err(|e| format!("bad seed {s:?} in {text:?}: {e}"))
+                };
+                let range = parse(start)?..parse(end)?;
+                if range.is_empty() {
+                    return Err(format!("the seed range {text:?} is empty"));
+                }
+                Ok(Self(range))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_names_and_ranges() {
+        assert_eq!("test".parse(), Ok(Episodes(10_000..10_020)));
+        assert_eq!("train".parse(), Ok(Episodes(0..100)));
+        assert_eq!("5..8".parse(), Ok(Episodes(5..8)));
+        assert!("8..5".parse::<Episodes>().is_err());
+        assert!("ten".parse::<Episodes>().is_err());
+    }
+}

@@ -1,0 +1,238 @@
+//! `dribble inspect`: is a recorded dataset sane? Counts, outcomes, the distribution of the
+//! expert's commands and phases, and a contact sheet of what the policy will see.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail, ensure};
+use clap::Args;
+use dribble_sim::dataset::{DatasetIndex, NpyArray, read_npz};
+use dribble_sim::expert::Phase;
+use dribble_sim::image_output::RgbImage;
+use dribble_sim::text::line_height;
+
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// The dataset directory (with dataset.json).
+    dataset: PathBuf,
+    /// Where to write the histograms of commands and phases.
+    #[arg(long, default_value = "dataset_histograms.png")]
+    histograms: PathBuf,
+    /// Where to write the contact sheet of sample thumbnails.
+    #[arg(long, default_value = "dataset_thumbnails.png")]
+    thumbnails: PathBuf,
+}
+
+const BINS: usize = 20;
+const BACKGROUND: [u8; 3] = [250, 250, 250];
+const INK: [u8; 3] = [20, 20, 20];
+const BAR: [u8; 3] = [31, 119, 180];
+
+/// A sampled row for the contact sheet.
+struct Sample {
+    seed: u64,
+    row: usize,
+    phase: u8,
+    command: [f32; 3],
+    top: Vec<u8>,
+    bottom: Vec<u8>,
+}
+
+pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
+    let index = DatasetIndex::load(&args.dataset)?
+        .with_context(|| format!("no {} in {}", DatasetIndex::FILE, args.dataset.display()))?;
+    ensure!(
+        !index.episodes.is_empty(),
+        "{} lists no episodes",
+        DatasetIndex::FILE
+    );
+    let mut outcomes: BTreeMap<&str, usize> = BTreeMap::new();
+    let mut histograms = [[0u64; BINS]; 3];
+    let mut phases = [0u64; 4];
+    let (mut rows, mut bytes, mut seconds) = (0usize, 0u64, 0.0f64);
+    let total_rows: usize = index.episodes.iter().map(|e| e.rows).sum();
+    let every = (total_rows / 16).max(1);
+    let mut samples = Vec::new();
+    for entry in &index.episodes {
+        *outcomes.entry(entry.outcome.name()).or_default() += 1;
+        let arrays = read_npz(&args.dataset.join(&entry.file))?;
+        let array = |name: &str| -> anyhow::Result<&NpyArray> {
+            arrays
+                .get(name)
+                .with_context(|| format!("{} has no {name} array", entry.file))
+        };
+        check_shapes(&arrays, entry.rows, &entry.file)?;
+        let command = array("command")?.as_f32();
+        let phase = &array("phase")?.data;
+        for (i, c) in command.chunks_exact(3).enumerate() {
+            for (histogram, value) in histograms.iter_mut().zip(c) {
+                let bin = (((value + 1.0) / 2.0 * BINS as f32) as usize).min(BINS - 1);
+                histogram[bin] += 1;
+            }
+            if let Some(count) = phases.get_mut(usize::from(phase[i])) {
+                *count += 1;
+            }
+            if (rows + i) % every == 0 && samples.len() < 16 {
+                samples.push(Sample {
+                    seed: entry.seed,
+                    row: i,
+                    phase: phase[i],
+                    command: [c[0], c[1], c[2]],
+                    top: array("top")?.data[i * 19_200..(i + 1) * 19_200].to_vec(),
+                    bottom: array("bottom")?.data[i * 4_800..(i + 1) * 4_800].to_vec(),
+                });
+            }
+        }
+        rows += entry.rows;
+        bytes += entry.bytes;
+        seconds += entry.duration_s;
+    }
+    println!(
+        "{}: {} episodes, {} rows, {:.0} simulated seconds, {:.1} MB on disk",
+        args.dataset.display(),
+        index.episodes.len(),
+        rows,
+        seconds,
+        bytes as f64 / 1e6
+    );
+    let outcome_list: Vec<String> = outcomes.iter().map(|(k, v)| format!("{k}: {v}")).collect();
+    println!("outcomes: {}", outcome_list.join(", "));
+    let phase_list: Vec<String> = Phase::ALL
+        .iter()
+        .zip(phases)
+        .map(|(p, n)| format!("{} {:.1}%", p.name(), 100.0 * n as f64 / rows.max(1) as f64))
+        .collect();
+    println!("phases: {}", phase_list.join(", "));
+    draw_histograms(&histograms, &phases, &args.histograms)?;
+    println!("histograms: {}", args.histograms.display());
+    draw_contact_sheet(&samples, &args.thumbnails)?;
+    println!("thumbnails: {}", args.thumbnails.display());
+    Ok(())
+}
+
+fn check_shapes(
+    arrays: &BTreeMap<String, NpyArray>,
+    rows: usize,
+    file: &str,
+) -> anyhow::Result<()> {
+    let expected: [(&str, &str, Vec<usize>); 7] = [
+        ("top", "|u1", vec![rows, 120, 160]),
+        ("bottom", "|u1", vec![rows, 60, 80]),
+        ("command", "<f4", vec![rows, 3]),
+        ("robot_pose", "<f4", vec![rows, 3]),
+        ("ball", "<f4", vec![rows, 2]),
+        ("time_s", "<f8", vec![rows]),
+        ("phase", "|u1", vec![rows]),
+    ];
+    for (name, descr, shape) in expected {
+        let Some(array) = arrays.get(name) else {
+            bail!("{file} has no {name} array");
+        };
+        ensure!(
+            array.descr == descr && array.shape == shape,
+            "{file}: {name} is {} {:?}, expected {descr} {shape:?}",
+            array.descr,
+            array.shape
+        );
+    }
+    Ok(())
+}
+
+/// Four bar charts: forward, left, turn (20 bins over -1..1) and the phases.
+fn draw_histograms(
+    commands: &[[u64; BINS]; 3],
+    phases: &[u64; 4],
+    path: &Path,
+) -> anyhow::Result<()> {
+    let (panel_width, panel_height) = (300i64, 240i64);
+    let mut image = RgbImage::filled(4 * panel_width as u32, panel_height as u32, BACKGROUND);
+    let scale = 2;
+    let label = line_height(scale) as i64;
+    let panels: [(&str, Vec<u64>, [&str; 2]); 4] = [
+        ("FORWARD", commands[0].to_vec(), ["-1", "+1"]),
+        ("LEFT", commands[1].to_vec(), ["-1", "+1"]),
+        ("TURN", commands[2].to_vec(), ["-1", "+1"]),
+        ("PHASE", phases.to_vec(), ["S A", "L D"]),
+    ];
+    for (p, (title, counts, ends)) in panels.iter().enumerate() {
+        let left = p as i64 * panel_width + 20;
+        let (plot_top, plot_bottom) = (label + 14, panel_height - label - 6);
+        let width = panel_width - 40;
+        let max = counts.iter().copied().max().unwrap_or(0).max(1);
+        image.text(left, 4, title, scale, INK);
+        image.text(
+            left + width - dribble_sim::text::text_width(&max.to_string(), 1) as i64,
+            6,
+            &max.to_string(),
+            1,
+            INK,
+        );
+        let bar_width = width / counts.len() as i64;
+        for (i, &count) in counts.iter().enumerate() {
+            let height = (count as f64 / max as f64 * (plot_bottom - plot_top) as f64) as i64;
+            image.fill_rect(
+                left + i as i64 * bar_width + 1,
+                plot_bottom - height,
+                bar_width - 2,
+                height,
+                BAR,
+            );
+        }
+        image.fill_rect(left, plot_bottom, width, 1, INK);
+        if *title == "PHASE" {
+            for (i, phase) in Phase::ALL.iter().enumerate() {
+                let name = &phase.name()[..3];
+                image.text(
+                    left + i as i64 * bar_width + 4,
+                    plot_bottom + 4,
+                    name,
+                    2,
+                    INK,
+                );
+            }
+        } else {
+            image.text(left, plot_bottom + 4, ends[0], scale, INK);
+            image.text(left + width / 2 - 6, plot_bottom + 4, "0", scale, INK);
+            image.text(left + width - 24, plot_bottom + 4, ends[1], scale, INK);
+        }
+    }
+    image.save_png(path)?;
+    Ok(())
+}
+
+/// Sample rows: the top thumbnail, the bottom one beside it, and a label
+/// `seed/row phase forward left turn`.
+fn draw_contact_sheet(samples: &[Sample], path: &Path) -> anyhow::Result<()> {
+    let (cell_width, cell_height) = (250i64, 150i64);
+    let columns = 4;
+    let rows = samples.len().div_ceil(columns).max(1) as i64;
+    let mut image = RgbImage::filled(
+        (columns as i64 * cell_width) as u32,
+        (rows * cell_height) as u32,
+        BACKGROUND,
+    );
+    for (i, sample) in samples.iter().enumerate() {
+        let x = (i % columns) as i64 * cell_width + 4;
+        let y = (i / columns) as i64 * cell_height + 4;
+        for (j, &p) in sample.top.iter().enumerate() {
+            image.put(x + (j % 160) as i64, y + (j / 160) as i64, [p, p, p]);
+        }
+        for (j, &p) in sample.bottom.iter().enumerate() {
+            image.put(x + 164 + (j % 80) as i64, y + (j / 80) as i64, [p, p, p]);
+        }
+        let phase = Phase::ALL
+            .get(usize::from(sample.phase))
+            .map_or("?", |p| p.name());
+        image.text(
+            x,
+            y + 124,
+            &format!("{}/{} {}", sample.seed, sample.row, phase),
+            1,
+            INK,
+        );
+        let [f, l, t] = sample.command;
+        image.text(x, y + 134, &format!("F{f:+.2} L{l:+.2} T{t:+.2}"), 1, INK);
+    }
+    image.save_png(path)?;
+    Ok(())
+}
