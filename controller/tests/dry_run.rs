@@ -2,9 +2,25 @@
 
 use std::process::Command;
 
+/// The controller binary; under `cross/test` it runs on the same emulated CPU as the tests
+/// (`DRIBBLE_TEST_RUNNER`, e.g. `qemu-i386 -cpu n270 ...`).
+fn controller() -> Command {
+    let binary = env!("CARGO_BIN_EXE_dribble-controller");
+    let runner = std::env::var("DRIBBLE_TEST_RUNNER").unwrap_or_default();
+    let mut parts = runner.split_whitespace();
+    match parts.next() {
+        Some(emulator) => {
+            let mut command = Command::new(emulator);
+            command.args(parts).arg(binary);
+            command
+        }
+        None => Command::new(binary),
+    }
+}
+
 #[test]
 fn dry_run_computes_commands_and_prints_its_statistics() {
-    let output = Command::new(env!("CARGO_BIN_EXE_dribble-controller"))
+    let output = controller()
         .args(["dry-run", "--seconds", "0.5", "--drop-bottom-every", "3"])
         .output()
         .expect("run dribble-controller");
@@ -27,7 +43,7 @@ fn dry_run_computes_commands_and_prints_its_statistics() {
 
 #[test]
 fn a_nonsense_rate_is_refused() {
-    let output = Command::new(env!("CARGO_BIN_EXE_dribble-controller"))
+    let output = controller()
         .args(["--rate-hz", "0", "dry-run"])
         .output()
         .expect("run dribble-controller");
