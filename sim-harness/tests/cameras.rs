@@ -155,12 +155,11 @@ fn the_same_seed_renders_identical_frames() {
     assert_ne!(first, other);
 }
 
-#[test]
-fn the_top_camera_sees_the_goal_from_the_centre_spot() {
-    let mut renderer = renderer();
-    let camera = camera(CameraPosition::Top, FieldPose::new(0.0, 0.0, 0.0));
+/// The top camera of a robot standing at `pose`, and what it sees of the empty field.
+fn top_view_without_ball(pose: FieldPose) -> (CameraModel, Box<TopFrame>) {
+    let camera = camera(CameraPosition::Top, pose);
     let mut frame = TopFrame::new_boxed();
-    renderer
+    renderer()
         .render(
             CameraPosition::Top,
             &camera,
@@ -168,6 +167,12 @@ fn the_top_camera_sees_the_goal_from_the_centre_spot() {
             &mut frame,
         )
         .expect("render");
+    (camera, frame)
+}
+
+#[test]
+fn the_top_camera_sees_the_goal_from_the_centre_spot() {
+    let (camera, frame) = top_view_without_ball(FieldPose::new(0.0, 0.0, 0.0));
     let luma = |point: Vec3| {
         let pixel = camera.project(point).expect("ahead");
         assert!(camera.contains(pixel), "{point} is outside the image");
@@ -189,17 +194,7 @@ fn the_top_camera_sees_the_goal_from_the_centre_spot() {
 
 #[test]
 fn a_line_five_metres_away_is_still_visible() {
-    let mut renderer = renderer();
-    let camera = camera(CameraPosition::Top, FieldPose::new(-0.5, 0.0, 0.0));
-    let mut frame = TopFrame::new_boxed();
-    renderer
-        .render(
-            CameraPosition::Top,
-            &camera,
-            &SceneState { ball: None },
-            &mut frame,
-        )
-        .expect("render");
+    let (camera, frame) = top_view_without_ball(FieldPose::new(-0.5, 0.0, 0.0));
     // The goal line, 5 m ahead, beside the goal; and carpet 0.3 m in front of it.
     for y in [-1.5f32, 1.5, 2.5] {
         let line = camera.project(Vec3::new(4.475, y, 0.0)).expect("ahead");
