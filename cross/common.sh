@@ -112,9 +112,15 @@ configure_target() {
         v5)
             TARGET=i686-unknown-linux-gnu
             export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_LINKER=i686-linux-gnu-gcc
-            if ensure_i686_sysroot; then
+            # The route that worked last time is kept, so builds are not redone each time the
+            # i386 package lists come and go.
+            local route_file="$cache/v5-std-route"
+            mkdir -p "$cache"
+            if [ "$(cat "$route_file" 2>/dev/null)" != source ] && ensure_i686_sysroot; then
+                echo debian-i386 >"$route_file"
                 export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_RUSTFLAGS="--sysroot $sysroot -C target-cpu=atom"
             else
+                echo source >"$route_file"
                 use_std_from_source
                 export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_RUSTFLAGS="-C target-cpu=atom"
             fi
