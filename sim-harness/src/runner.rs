@@ -113,19 +113,6 @@ impl std::fmt::Debug for Driver<'_> {
     }
 }
 
-/// A policy borrowed for one episode.
-struct Borrowed<'a>(&'a mut dyn Policy);
-
-impl Policy for Borrowed<'_> {
-    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
-        self.0.step(input)
-    }
-
-    fn reset(&mut self) {
-        self.0.reset();
-    }
-}
-
 /// Runs one episode. Images are rendered when a renderer is given (a policy needs one);
 /// rows are recorded when a recording is given.
 pub fn run_episode(
@@ -153,7 +140,7 @@ pub fn run_episode(
                 channel: Rc::clone(&channel),
             }),
         ),
-        Driver::Policy(policy) => (false, Box::new(Borrowed(policy))),
+        Driver::Policy(policy) => (false, Box::new(policy)),
     };
     let clock = ManualClock::default();
     let mut control = ControlLoop::new(config.control, policy, clock.clone());

@@ -74,6 +74,16 @@ pub trait Policy {
     fn reset(&mut self);
 }
 
+impl<P: Policy + ?Sized> Policy for &mut P {
+    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        (**self).step(input)
+    }
+
+    fn reset(&mut self) {
+        (**self).reset()
+    }
+}
+
 impl<P: Policy + ?Sized> Policy for Box<P> {
     fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
         (**self).step(input)
