@@ -109,10 +109,14 @@ fn eval_drives_with_a_learned_policy_through_the_rendered_cameras() {
         "2",
         "--plot",
         path(&plot),
+        // The controller process (the default) is tested in controller_process.rs.
+        "--transport",
+        "in-process",
     ]);
     let log = text(&output);
     assert!(output.status.success(), "{log}");
     assert!(log.contains("driver: CNN policy"), "{log}");
+    assert!(log.contains("in-process (controller thread)"), "{log}");
     assert!(log.contains("adapter: "), "{log}");
     // Random weights: no goal, but a command for every camera pair (60 in 2 s, the first
     // pair completing half a period in).

@@ -140,6 +140,12 @@ impl CameraSync {
         &self.counters
     }
 
+    /// Forgets both cameras, as after a restart of the driver (a new episode in simulation):
+    /// the next frames are accepted whatever their sequence. Counters go on.
+    pub fn reset(&mut self) {
+        self.tracks = Default::default();
+    }
+
     /// Offers a frame of `camera` with `sequence` that arrived at `now`.
     pub fn offer(&mut self, camera: CameraPosition, sequence: u64, now: Timestamp) -> FrameVerdict {
         let limit = self.config.silence_limit();

@@ -86,6 +86,11 @@ impl ManualClock {
         self.nanos.fetch_max(time.as_nanos(), Ordering::AcqRel);
     }
 
+    /// Sets the time even if it is earlier: the start of a new episode.
+    pub fn restart_at(&self, time: Timestamp) {
+        self.nanos.store(time.as_nanos(), Ordering::Release);
+    }
+
     pub fn advance(&self, by: Duration) {
         let by = duration_nanos(by);
         // fetch_update cannot fail with a closure that always returns Some.
@@ -133,5 +138,7 @@ mod tests {
         assert_eq!(loop_side.now(), Timestamp::from_nanos(1000));
         loop_side.set(Timestamp::from_nanos(10));
         assert_eq!(simulator_side.now(), Timestamp::from_nanos(1000));
+        loop_side.restart_at(Timestamp::from_nanos(10));
+        assert_eq!(simulator_side.now(), Timestamp::from_nanos(10));
     }
 }

@@ -6,6 +6,7 @@
 //! runs on the thumbnails of the newest frame of each camera.
 
 use core::time::Duration;
+use std::time::Instant;
 
 use crate::camera_sync::{CameraSync, StopReason, SyncConfig, SyncCounters, SyncDecision};
 use crate::clock::Clock;
@@ -104,6 +105,8 @@ impl<P: Policy, C: Clock> ControlLoop<P, C> {
 
     /// One tick: takes the newest frames, and publishes a new, repeated or stop command.
     pub fn tick(&mut self, input: CameraInput<'_>) -> MotionCommand {
+        // Tick time is wall time whatever the clock: a simulated clock stands still during a tick.
+        let stopwatch = Instant::now();
         let started = self.clock.now();
         if let Some(frame) = input.top
             && self.accept(CameraPosition::Top, frame, started)
@@ -136,9 +139,19 @@ impl<P: Policy, C: Clock> ControlLoop<P, C> {
             self.counters.stops += 1;
         }
         self.last_command = command;
-        self.stats
-            .record(self.clock.now().saturating_since(started));
+        self.stats.record(stopwatch.elapsed());
         command
+    }
+
+    /// A stop published when no tick could run: the source of time and frames (a lock-step
+    /// simulator) fell silent. It is counted, but changes nothing the next tick decides on,
+    /// so a simulator that was only slow carries on exactly where it was.
+    pub fn watchdog_stop(&mut self) -> MotionCommand {
+        let now = self.clock.now();
+        let last = self.last_command;
+        self.counters.stops += 1;
+        self.counters.camera_stops += 1;
+        self.stop(now, last.top_sequence, last.bottom_sequence)
     }
 
     /// Waits for the next tick's deadline. Deadlines are a fixed grid from the first call;
@@ -157,9 +170,18 @@ impl<P: Policy, C: Clock> ControlLoop<P, C> {
         self.clock.sleep_until(deadline);
     }
 
-    /// Starts a new episode: the policy forgets its state. Counters and statistics go on.
+    /// Starts a new episode, as if the robot were switched on afresh: the policy forgets its
+    /// state, the cameras are waited for again and the robot stands until both deliver.
+    /// Command sequence numbers, counters and statistics go on.
     pub fn reset_episode(&mut self) {
         self.policy.reset();
+        self.sync.reset();
+        let sequence = self.last_command.sequence;
+        self.last_command = MotionCommand {
+            sequence,
+            ..MotionCommand::initial_stop()
+        };
+        self.next_deadline = None;
     }
 
     /// Whether `frame` is valid and newer than this camera's newest frame.
@@ -528,13 +550,46 @@ mod tests {
     }
 
     #[test]
-    fn reset_episode_resets_the_policy() {
+    fn reset_episode_starts_afresh_like_a_new_loop() {
+        let script = || ScriptedPolicy {
+            outputs: vec![forward(0.5)],
+            ..Default::default()
+        };
+        let mut used = Rig::new(script());
+        used.tick(Some(7), Some(7));
+        used.tick(Some(8), None);
+        used.control.reset_episode();
+        assert_eq!(used.control.policy().resets, 1);
+        let mut fresh = Rig::new(script());
+        // Sequence numbers restart with the new episode's camera, and nothing is repeated
+        // from the last episode: both loops now behave the same.
+        for frames in [(Some(0), None), (None, Some(0)), (Some(1), None)] {
+            let (a, b) = (
+                used.tick(frames.0, frames.1),
+                fresh.tick(frames.0, frames.1),
+            );
+            assert_eq!((a.speed, a.flags), (b.speed, b.flags), "{frames:?}");
+            assert_eq!(
+                (a.top_sequence, a.bottom_sequence),
+                (b.top_sequence, b.bottom_sequence)
+            );
+        }
+    }
+
+    #[test]
+    fn a_watchdog_stop_leaves_the_next_decision_alone() {
         let mut rig = Rig::new(ScriptedPolicy {
-            outputs: vec![forward(0.0)],
+            outputs: vec![forward(0.5)],
             ..Default::default()
         });
-        rig.control.reset_episode();
-        assert_eq!(rig.control.policy().resets, 1);
+        let computed = rig.tick(Some(0), Some(0));
+        let stop = rig.control.watchdog_stop();
+        assert!(stop.is_stop() && stop.speed.is_stop());
+        assert_eq!(stop.sequence, computed.sequence + 1);
+        let repeated = rig.tick(None, None);
+        assert!(repeated.is_repeated() && !repeated.is_stop());
+        assert_eq!(repeated.speed, computed.speed);
+        assert_eq!(rig.control.counters().camera_stops, 1);
     }
 
     #[test]

@@ -238,6 +238,12 @@ impl<const WIDTH: usize, const HEIGHT: usize> CameraFrame<WIDTH, HEIGHT> {
     pub fn as_bytes_mut(&mut self) -> &mut [u8] {
         self.pixels.as_flattened_mut().as_flattened_mut()
     }
+
+    /// Makes this frame a copy of `other`, header and pixels, without a temporary.
+    pub fn copy_from(&mut self, other: &Self) {
+        self.header = other.header;
+        self.pixels.copy_from_slice(&other.pixels);
+    }
 }
 
 impl<const WIDTH: usize, const HEIGHT: usize> fmt::Debug for CameraFrame<WIDTH, HEIGHT> {

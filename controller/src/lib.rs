@@ -8,7 +8,8 @@
 //! policy ([`policy`]) → command ([`speed_command`], [`motion_command`]),
 //!
 //! put together by [`control_loop::ControlLoop`] and timed by a [`clock::Clock`]. After
-//! start-up a tick allocates nothing. This crate knows nothing of the simulator; the
+//! start-up a tick allocates nothing. [`transport`] brings frames in and takes commands out:
+//! iceoryx2 shared memory between processes, or channels to a thread. This crate knows nothing of the simulator; the
 //! simulator depends on it.
 
 #![deny(unsafe_code)]
@@ -16,14 +17,17 @@
 pub mod camera_sync;
 pub mod clock;
 pub mod control_loop;
+pub mod event_log;
 pub mod frame;
 pub mod histogram;
 pub mod motion_command;
 pub mod policy;
+pub mod shutdown;
 pub mod speed_command;
 pub mod test_pattern;
 pub mod thumbnail;
 pub mod tick_stats;
+pub mod transport;
 pub mod units;
 
 pub use camera_sync::{CameraSync, SyncConfig, SyncDecision};

@@ -4,12 +4,15 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use clap::{Parser, Subcommand};
-use dribble_controller::Policy;
+use clap::{Parser, Subcommand, ValueEnum};
+use dribble_controller::event_log::{Chain, Level, log};
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
 use dribble_controller::test_pattern::TestPattern;
+use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts};
+use dribble_controller::transport::{ControllerNode, NodeCounters, NodeEvent};
 use dribble_controller::{
-    BottomFrame, CameraInput, Clock, ControlLoop, LoopConfig, MonotonicClock, SyncConfig, TopFrame,
+    BottomFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, MonotonicClock, Policy,
+    SyncConfig, TopFrame, shutdown,
 };
 
 /// The dribble controller: turns the Nao's two camera images into walk speed commands with a
@@ -24,8 +27,35 @@ struct Cli {
     command: Command,
 }
 
+/// Where the controller's time comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum ClockArg {
+    /// The robot: a tick every period on CLOCK_MONOTONIC.
+    Monotonic,
+    /// Lock-step simulation: a tick whenever the simulator publishes one, at its time.
+    Simulation,
+}
+
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Runs the controller: subscribes to the cameras (iceoryx2 services
+    /// dribble/camera/top and dribble/camera/bottom), computes a command every tick and
+    /// publishes it on dribble/motion/command. Logs events (logfmt) on standard error; on
+    /// SIGINT or SIGTERM it stops cleanly and prints its statistics.
+    Run {
+        /// A learned policy's manifest (`policy.toml`); without it, the brightness test
+        /// policy drives.
+        #[arg(long)]
+        policy: Option<PathBuf>,
+        /// Where time comes from: `monotonic` on the robot, `simulation` to run in
+        /// lock-step with `dribble eval`.
+        #[arg(long, value_enum, default_value_t = ClockArg::Monotonic)]
+        clock: ClockArg,
+        /// The iceoryx2 domain: keeps several robots (or tests) on one machine apart.
+        /// Default: $DRIBBLE_DOMAIN, else iceoryx2's default configuration.
+        #[arg(long)]
+        domain: Option<String>,
+    },
     /// Runs the loop in real time on a built-in moving test pattern instead of the cameras,
     /// with a hand-written brightness policy, then prints its statistics. Use it on a robot
     /// to check that the loop keeps its rate and the 2 ms tick budget there.
@@ -53,6 +83,21 @@ fn main() -> anyhow::Result<()> {
         ..LoopConfig::default()
     };
     match cli.command {
+        Command::Run {
+            policy,
+            clock,
+            domain,
+        } => {
+            let domain = match domain {
+                Some(name) => Domain::new(Some(&name))?,
+                None => Domain::from_env()?,
+            };
+            let result = run(config, load_policy(policy.as_deref())?, clock, &domain);
+            if let Err(error) = &result {
+                log(Level::Error, "failed", &[("error", &Chain(error.as_ref()))]);
+            }
+            result
+        }
         Command::DryRun {
             policy,
             seconds,
@@ -80,6 +125,76 @@ fn load_policy(manifest: Option<&Path>) -> anyhow::Result<Box<dyn Policy>> {
         manifest.training.dataset
     );
     Ok(Box::new(policy))
+}
+
+fn run(
+    config: LoopConfig,
+    policy: Box<dyn Policy>,
+    clock: ClockArg,
+    domain: &Domain,
+) -> anyhow::Result<()> {
+    let stop = shutdown::on_termination().context("cannot handle SIGINT and SIGTERM")?;
+    let ports = Iceoryx2ControllerPorts::open(domain).with_context(|| {
+        format!(
+            "cannot open the iceoryx2 services of domain {}",
+            domain.name()
+        )
+    })?;
+    log(
+        Level::Info,
+        "ready",
+        &[
+            ("domain", &domain.name()),
+            ("clock", &format!("{clock:?}").to_lowercase()),
+            ("rate_hz", &(1.0 / config.tick_period.as_secs_f64())),
+            ("pid", &std::process::id()),
+            ("cleaned_dead_nodes", &ports.cleaned_dead_nodes()),
+        ],
+    );
+    let on_event = |event: NodeEvent| match event {
+        NodeEvent::EpisodeStarted { episode } => {
+            log(Level::Info, "episode", &[("episode", &episode)]);
+        }
+        NodeEvent::SimulatorSilent => log(
+            Level::Warn,
+            "simulator_silent",
+            &[("action", &"publishing stops until ticks return")],
+        ),
+        NodeEvent::SimulatorBack => log(Level::Info, "simulator_back", &[]),
+    };
+    match clock {
+        ClockArg::Monotonic => {
+            let mut node =
+                ControllerNode::new(ControlLoop::new(config, policy, MonotonicClock), ports);
+            let result = node.run_fixed_rate(stop);
+            finish(node.control(), node.counters(), result)
+        }
+        ClockArg::Simulation => {
+            let control = ControlLoop::new(config, policy, ManualClock::default());
+            let mut node = ControllerNode::new(control, ports);
+            let result = node.run_lock_step(stop, on_event);
+            finish(node.control(), node.counters(), result)
+        }
+    }
+}
+
+fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(
+    control: &ControlLoop<P, C>,
+    node: &NodeCounters,
+    result: Result<(), E>,
+) -> anyhow::Result<()> {
+    let counters = control.counters();
+    log(
+        Level::Info,
+        "stopped",
+        &[
+            ("ticks", &counters.ticks),
+            ("episodes", &node.episodes),
+            ("watchdog_stops", &node.watchdog_stops),
+        ],
+    );
+    print_statistics(control);
+    result.context("the transport failed")
 }
 
 fn dry_run(
@@ -146,7 +261,10 @@ fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) {
         counters.deadline_misses
     );
     match control.tick_stats().summary() {
-        Some(summary) => println!("tick time: {summary}"),
+        Some(summary) => println!(
+            "tick time: p50 {:.1?} p99 {:.1?} max {:.1?}; {} overruns of the {:?} budget",
+            summary.median, summary.p99, summary.max, summary.overruns, summary.budget
+        ),
         None => println!("tick time: no ticks ran"),
     }
 }

@@ -218,6 +218,8 @@ pub enum Outcome {
     Goal,
     BallOut,
     TimeLimit,
+    /// The controller died or stopped answering: the episode failed.
+    ControllerLost,
 }
 
 impl Outcome {
@@ -226,6 +228,7 @@ impl Outcome {
             Self::Goal => "goal",
             Self::BallOut => "ball out",
             Self::TimeLimit => "time limit",
+            Self::ControllerLost => "controller lost",
         }
     }
 }

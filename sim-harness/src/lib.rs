@@ -8,6 +8,7 @@
 
 pub mod camera_geometry;
 pub mod camera_model;
+pub mod controller_link;
 pub mod dataset;
 pub mod episode;
 pub mod expert;

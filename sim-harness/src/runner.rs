@@ -1,5 +1,6 @@
 //! Runs the paper's episodes in lock-step: physics, cameras, the controller's tick, the
-//! walk. A driver is the expert (with ground truth) or any `Policy`; both go through the
+//! walk. A driver is the expert (with ground truth), any `Policy`, or a controller behind a
+//! [`ControllerLink`] (another process over iceoryx2, or a thread). All go through the
 //! controller's own `ControlLoop`, so a command is computed exactly when the robot would
 //! compute one (both cameras new) and repeated otherwise, from thumbnails made by the
 //! robot's own code.
@@ -15,7 +16,11 @@ use dribble_controller::{
 };
 use glam::Vec2;
 
+use dribble_controller::MotionCommand;
+use dribble_controller::transport::LockStepTick;
+
 use crate::camera_geometry::CameraGeometry;
+use crate::controller_link::{ControllerLink, LinkError};
 use crate::dataset::{EpisodeRecording, Outcome, Row};
 use crate::episode::EpisodeSetup;
 use crate::expert::{Expert, GroundTruth, Phase};
@@ -59,8 +64,11 @@ pub struct EpisodeResult {
     pub ball_path: Vec<Vec2>,
     /// Commands computed from new camera pairs.
     pub computed_commands: u64,
-    /// Wall-clock time of each controller tick that computed a command.
+    /// Wall-clock time of each controller tick that computed a command; for a linked
+    /// controller, of the whole lock-step round trip (tick out, command back).
     pub tick_times: TickStats,
+    /// Why the episode failed, when the outcome is [`Outcome::ControllerLost`].
+    pub failure: Option<String>,
 }
 
 /// Shares the truth with the expert inside the control loop, and its phase back.
@@ -102,6 +110,9 @@ pub enum Driver<'a> {
     Expert(Expert),
     /// A policy that sees the rendered thumbnails.
     Policy(&'a mut dyn Policy),
+    /// A controller of its own (a process or a thread) that gets the rendered frames and
+    /// a tick per motion cycle, and answers with commands.
+    Controller(&'a mut dyn ControllerLink),
 }
 
 impl std::fmt::Debug for Driver<'_> {
@@ -109,6 +120,7 @@ impl std::fmt::Debug for Driver<'_> {
         match self {
             Self::Expert(expert) => f.debug_tuple("Expert").field(expert).finish(),
             Self::Policy(_) => f.write_str("Policy"),
+            Self::Controller(_) => f.write_str("Controller"),
         }
     }
 }
@@ -141,6 +153,9 @@ pub fn run_episode(
             }),
         ),
         Driver::Policy(policy) => (false, Box::new(policy)),
+        Driver::Controller(link) => {
+            return run_linked(setup, config, link, renderer);
+        }
     };
     let clock = ManualClock::default();
     let mut control = ControlLoop::new(config.control, policy, clock.clone());
@@ -241,5 +256,149 @@ pub fn run_episode(
         ball_path,
         computed_commands: control.counters().new_commands,
         tick_times,
+        failure: None,
+    })
+}
+
+/// What `run_linked` keeps track of besides the simulation.
+struct Trace {
+    robot_path: Vec<Vec2>,
+    ball_path: Vec<Vec2>,
+    distance: f32,
+    last_position: Vec2,
+}
+
+impl Trace {
+    fn new(setup: &EpisodeSetup) -> Self {
+        Self {
+            robot_path: Vec::new(),
+            ball_path: Vec::new(),
+            distance: 0.0,
+            last_position: Vec2::new(setup.robot.x, setup.robot.y),
+        }
+    }
+
+    fn after_step(&mut self, simulation: &Simulation) {
+        let pose = simulation.world().robot_pose();
+        let position = Vec2::new(pose.x, pose.y);
+        self.distance += (position - self.last_position).length();
+        self.last_position = position;
+        if simulation
+            .world()
+            .steps()
+            .is_multiple_of(STEPS_PER_SECOND / 10)
+        {
+            self.robot_path.push(position);
+            self.ball_path
+                .push(simulation.world().ball().position.truncate());
+        }
+    }
+}
+
+/// An episode driven by a controller behind a link: frames go out as the cameras take
+/// them, a tick goes out every motion cycle, and the command that answers it drives the
+/// walk. A link that fails (the controller died or stopped answering) ends the episode as
+/// [`Outcome::ControllerLost`].
+fn run_linked(
+    setup: &EpisodeSetup,
+    config: &EpisodeConfig,
+    link: &mut dyn ControllerLink,
+    mut renderer: Option<&mut Renderer>,
+) -> Result<EpisodeResult, RenderError> {
+    let mut simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
+    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    let field = *simulation.world().field();
+    let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
+    let mut tick_times = TickStats::new(config.control.budget);
+    let mut trace = Trace::new(setup);
+    let mut computed_commands = 0;
+    let mut failure = None;
+    let mut index = 0;
+    let mut exchange = |simulation: &Simulation,
+                        camera: Option<CameraPosition>,
+                        top: &TopFrame,
+                        bottom: &BottomFrame|
+     -> Result<Option<MotionCommand>, LinkError> {
+        match camera {
+            Some(CameraPosition::Top) => link.publish_top(top)?,
+            Some(CameraPosition::Bottom) => link.publish_bottom(bottom)?,
+            None => {}
+        }
+        if !simulation
+            .world()
+            .steps()
+            .is_multiple_of(STEPS_PER_MOTION_CYCLE)
+        {
+            return Ok(None);
+        }
+        let tick = LockStepTick {
+            episode: setup.seed,
+            index,
+            time_ns: simulation.time().as_nanos(),
+        };
+        index += 1;
+        let started = Instant::now();
+        let command = link.exchange(&tick)?;
+        if command.is_new() {
+            tick_times.record(started.elapsed());
+            computed_commands += 1;
+        }
+        Ok(Some(command))
+    };
+    let outcome = loop {
+        let camera = simulation.step();
+        if let Some(camera) = camera {
+            let (sequence, time) = (simulation.frame_sequence(camera), simulation.time());
+            let model = simulation.camera(camera);
+            let scene = simulation.scene();
+            match camera {
+                CameraPosition::Top => {
+                    if let Some(renderer) = renderer.as_deref_mut() {
+                        renderer.render(camera, &model, &scene, &mut top)?;
+                    }
+                    top.restamp(sequence, time);
+                }
+                CameraPosition::Bottom => {
+                    if let Some(renderer) = renderer.as_deref_mut() {
+                        renderer.render(camera, &model, &scene, &mut bottom)?;
+                    }
+                    bottom.restamp(sequence, time);
+                }
+            }
+        }
+        trace.after_step(&simulation);
+        match exchange(&simulation, camera, &top, &bottom) {
+            Ok(Some(command)) => simulation.set_command(command.speed),
+            Ok(None) => {}
+            Err(error) => {
+                failure = Some(error.to_string());
+                break Outcome::ControllerLost;
+            }
+        }
+        let ball = simulation.world().ball().position;
+        if field.is_goal(setup.target_side, ball.x, ball.y) {
+            break Outcome::Goal;
+        }
+        if field.is_out(ball.x, ball.y) {
+            break Outcome::BallOut;
+        }
+        if simulation.world().steps() >= limit_steps {
+            break Outcome::TimeLimit;
+        }
+    };
+    trace.robot_path.push(trace.last_position);
+    trace
+        .ball_path
+        .push(simulation.world().ball().position.truncate());
+    Ok(EpisodeResult {
+        setup: *setup,
+        outcome,
+        duration_s: simulation.time().as_nanos() as f32 / 1e9,
+        distance_walked_m: trace.distance,
+        robot_path: trace.robot_path,
+        ball_path: trace.ball_path,
+        computed_commands,
+        tick_times,
+        failure,
     })
 }

@@ -3,21 +3,20 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 pub struct CountingAllocator;
 
-static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
-static ALLOCATED_BYTES: AtomicU64 = AtomicU64::new(0);
-
+// Per thread, so that tests counting at the same time do not see each other's allocations.
 thread_local! {
     static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+    static ALLOCATED_BYTES: Cell<u64> = const { Cell::new(0) };
 }
 
 fn note(bytes: usize) {
     if COUNTING.with(Cell::get) {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        ALLOCATED_BYTES.fetch_add(bytes as u64, Ordering::Relaxed);
+        ALLOCATIONS.with(|n| n.set(n.get() + 1));
+        ALLOCATED_BYTES.with(|n| n.set(n.get() + bytes as u64));
     }
 }
 
@@ -50,15 +49,12 @@ unsafe impl GlobalAlloc for CountingAllocator {
 
 /// Counts allocations on this thread while `body` runs.
 pub fn count_allocations(body: impl FnOnce()) -> (u64, u64) {
-    let (before, before_bytes) = (
-        ALLOCATIONS.load(Ordering::Relaxed),
-        ALLOCATED_BYTES.load(Ordering::Relaxed),
-    );
+    let (before, before_bytes) = (ALLOCATIONS.with(Cell::get), ALLOCATED_BYTES.with(Cell::get));
     COUNTING.with(|c| c.set(true));
     body();
     COUNTING.with(|c| c.set(false));
     (
-        ALLOCATIONS.load(Ordering::Relaxed) - before,
-        ALLOCATED_BYTES.load(Ordering::Relaxed) - before_bytes,
+        ALLOCATIONS.with(Cell::get) - before,
+        ALLOCATED_BYTES.with(Cell::get) - before_bytes,
     )
 }

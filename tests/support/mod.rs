@@ -13,3 +13,59 @@ pub fn fixture_manifest(kind: &str) -> PathBuf {
         .join(kind)
         .join("policy.toml")
 }
+
+/// The `dribble-controller` binary of this build, built first if needed (cargo builds only
+/// the tested package's binaries for its tests).
+pub fn controller_binary() -> PathBuf {
+    static BUILT: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            let dribble = Path::new(env!("CARGO_BIN_EXE_dribble"));
+            let profile_dir = dribble.parent().expect("a target directory");
+            let target_dir = profile_dir.parent().expect("a target directory");
+            let mut build = std::process::Command::new(env!("CARGO"));
+            build
+                .args(["build", "--quiet", "-p", "dribble-controller"])
+                .args(["--bin", "dribble-controller"])
+                .env("CARGO_TARGET_DIR", target_dir)
+                .current_dir(env!("CARGO_MANIFEST_DIR"));
+            if profile_dir.ends_with("release") {
+                build.arg("--release");
+            }
+            let status = build.status().expect("cargo runs");
+            assert!(status.success(), "building dribble-controller failed");
+            profile_dir.join("dribble-controller")
+        })
+        .clone()
+}
+
+/// A fresh directory for one test's files.
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("dribble-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch directory");
+    dir
+}
+
+/// The iceoryx2 domain of one test: no other test uses it, and a crashed run's leftovers
+/// are cleaned up by the next run.
+pub fn domain_name(test: &str) -> String {
+    format!("test-{test}")
+}
+
+/// Waits until `path` contains `needle`; returns the whole text.
+pub fn wait_for_text(path: &Path, needle: &str, timeout: std::time::Duration) -> String {
+    let deadline = std::time::Instant::now() + timeout;
+    loop {
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        if text.contains(needle) {
+            return text;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "{} never said {needle:?}; it said:\n{text}",
+            path.display()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}

@@ -1,0 +1,65 @@
+//! How frames come in and commands go out.
+//!
+//! On the robot a camera driver publishes frames and a motion module consumes commands; in
+//! simulation the harness plays both roles and, in lock-step, also hands out the time. The
+//! controller sees the same [`ControllerPorts`] either way:
+//!
+//! - [`ipc`]: iceoryx2 zero-copy shared memory between processes, the robot's transport;
+//! - [`channel`]: crossbeam channels to a controller in a thread of the simulator.
+//!
+//! [`ControllerNode`] is the controller's main loop over any of them.
+
+pub mod channel;
+pub mod ipc;
+mod lock_step;
+mod node;
+
+use core::ops::Deref;
+use core::time::Duration;
+
+pub use lock_step::LockStepTick;
+pub use node::{ClockSource, ControllerNode, NodeCounters, NodeEvent};
+
+use crate::frame::{BottomFrame, TopFrame};
+use crate::motion_command::MotionCommand;
+
+/// A transport failed. Carries the transport's own words: these are rare, and a RoboCup
+/// team debugging a robot wants the whole story.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum TransportError {
+    #[error("{what}: {detail}")]
+    Ipc { what: &'static str, detail: String },
+    /// The other side of an in-process transport is gone.
+    #[error("the {0} side of the in-process transport is gone")]
+    Disconnected(&'static str),
+}
+
+impl TransportError {
+    pub(crate) fn ipc(what: &'static str, detail: impl core::fmt::Debug) -> Self {
+        Self::Ipc {
+            what,
+            detail: format!("{detail:?}"),
+        }
+    }
+}
+
+/// The controller's side of a transport.
+///
+/// A frame is held as the transport's own sample (`Top`, `Bottom`): in shared memory, the
+/// controller reads it where the driver wrote it, and it goes back when dropped.
+pub trait ControllerPorts {
+    type Top: Deref<Target = TopFrame>;
+    type Bottom: Deref<Target = BottomFrame>;
+
+    /// The newest top frame published since the last call, if any; older ones are released.
+    fn newest_top(&mut self) -> Result<Option<Self::Top>, TransportError>;
+
+    /// The newest bottom frame published since the last call, if any.
+    fn newest_bottom(&mut self) -> Result<Option<Self::Bottom>, TransportError>;
+
+    /// Publishes a command to the motion module (and wakes whoever waits for it).
+    fn publish(&mut self, command: &MotionCommand) -> Result<(), TransportError>;
+
+    /// Lock-step simulation only: the simulator's next tick, waiting at most `timeout`.
+    fn next_tick(&mut self, timeout: Duration) -> Result<Option<LockStepTick>, TransportError>;
+}

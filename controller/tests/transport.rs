@@ -1,0 +1,271 @@
+//! Both transports carry the lock-step protocol the same way: frames and a tick in, the
+//! answering command out, episodes reset, stops when the simulator falls silent.
+//! The iceoryx2 cases use a domain of their own, so tests running at once do not meet.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use dribble_controller::policy::BrightnessPolicy;
+use dribble_controller::transport::channel::{ChannelSimulatorPorts, channel_transport};
+use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts, Iceoryx2SimulatorPorts};
+use dribble_controller::transport::{ControllerNode, LockStepTick, TransportError};
+use dribble_controller::{
+    BottomFrame, ControlLoop, LoopConfig, ManualClock, MotionCommand, Timestamp, TopFrame,
+};
+
+/// What the simulator does with either transport.
+trait SimulatorSide {
+    fn publish_top(&mut self, frame: &TopFrame);
+    fn publish_bottom(&mut self, frame: &BottomFrame);
+    fn exchange(&mut self, tick: &LockStepTick) -> Option<MotionCommand>;
+    /// Any command at all within `timeout` (a watchdog stop has no tick to answer).
+    fn any_command(&mut self, timeout: Duration) -> Option<MotionCommand>;
+}
+
+const ANSWER: Duration = Duration::from_secs(5);
+
+impl SimulatorSide for Iceoryx2SimulatorPorts {
+    fn publish_top(&mut self, frame: &TopFrame) {
+        Iceoryx2SimulatorPorts::publish_top(self, frame).expect("publish top");
+    }
+    fn publish_bottom(&mut self, frame: &BottomFrame) {
+        Iceoryx2SimulatorPorts::publish_bottom(self, frame).expect("publish bottom");
+    }
+    fn exchange(&mut self, tick: &LockStepTick) -> Option<MotionCommand> {
+        self.discard_commands().expect("discard");
+        self.publish_tick(tick).expect("publish tick");
+        let deadline = Instant::now() + ANSWER;
+        while Instant::now() < deadline {
+            if let Some(command) = self
+                .answer(tick, Duration::from_millis(10))
+                .expect("answer")
+            {
+                return Some(command);
+            }
+        }
+        None
+    }
+    fn any_command(&mut self, timeout: Duration) -> Option<MotionCommand> {
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            // A tick time no command carries: every command is "stale", so look at them raw.
+            if let Some(command) = self.latest_command().expect("receive") {
+                return Some(command);
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        None
+    }
+}
+
+impl SimulatorSide for ChannelSimulatorPorts {
+    fn publish_top(&mut self, frame: &TopFrame) {
+        ChannelSimulatorPorts::publish_top(self, frame).expect("publish top");
+    }
+    fn publish_bottom(&mut self, frame: &BottomFrame) {
+        ChannelSimulatorPorts::publish_bottom(self, frame).expect("publish bottom");
+    }
+    fn exchange(&mut self, tick: &LockStepTick) -> Option<MotionCommand> {
+        self.discard_commands();
+        self.publish_tick(tick).expect("publish tick");
+        self.answer(tick, ANSWER).expect("answer")
+    }
+    fn any_command(&mut self, timeout: Duration) -> Option<MotionCommand> {
+        self.latest_command(timeout).expect("receive")
+    }
+}
+
+struct Controller {
+    stop: Arc<AtomicBool>,
+    thread: JoinHandle<Result<u64, TransportError>>,
+}
+
+impl Controller {
+    /// Stops the loop and returns how many watchdog stops it published.
+    fn stop(self) -> u64 {
+        self.stop.store(true, Ordering::Release);
+        self.thread
+            .join()
+            .expect("controller thread")
+            .expect("controller loop")
+    }
+}
+
+fn spawn_controller<T, F>(open: F) -> Controller
+where
+    T: dribble_controller::transport::ControllerPorts,
+    F: FnOnce() -> T + Send + 'static,
+{
+    let stop = Arc::new(AtomicBool::new(false));
+    let thread_stop = Arc::clone(&stop);
+    let thread = std::thread::spawn(move || {
+        let control = ControlLoop::new(
+            LoopConfig::default(),
+            BrightnessPolicy::default(),
+            ManualClock::default(),
+        );
+        let mut node = ControllerNode::new(control, open());
+        node.run_lock_step(&thread_stop, |_| {})?;
+        Ok(node.counters().watchdog_stops)
+    });
+    Controller { stop, thread }
+}
+
+fn tick(episode: u64, index: u64) -> LockStepTick {
+    LockStepTick {
+        episode,
+        index,
+        time_ns: (index + 1) * 10_000_000,
+    }
+}
+
+/// The protocol, seen from the simulator.
+fn lock_step_scenario(sim: &mut dyn SimulatorSide) {
+    let mut top = TopFrame::new_boxed();
+    let mut bottom = BottomFrame::new_boxed();
+    top.as_bytes_mut().fill(200);
+    bottom.as_bytes_mut().fill(230);
+
+    // No frames yet: the answer is a stop, stamped with the tick's time.
+    let first = sim.exchange(&tick(1, 0)).expect("an answer to tick 0");
+    assert!(first.is_stop());
+    assert_eq!(first.timestamp(), Timestamp::from_nanos(10_000_000));
+
+    // Both cameras: a new command from these very frames.
+    top.restamp(0, Timestamp::from_nanos(15_000_000));
+    bottom.restamp(0, Timestamp::from_nanos(16_000_000));
+    sim.publish_top(&top);
+    sim.publish_bottom(&bottom);
+    let computed = sim.exchange(&tick(1, 1)).expect("an answer to tick 1");
+    assert!(computed.is_new() && !computed.is_stop(), "{computed:?}");
+    assert_eq!((computed.top_sequence, computed.bottom_sequence), (0, 0));
+    assert!(
+        computed.speed.forward() > 0.0,
+        "a bright bottom image walks forward"
+    );
+
+    // Only the newest of two top frames counts; without a new bottom frame it repeats.
+    top.restamp(1, Timestamp::from_nanos(20_000_000));
+    sim.publish_top(&top);
+    top.restamp(2, Timestamp::from_nanos(21_000_000));
+    sim.publish_top(&top);
+    let repeated = sim.exchange(&tick(1, 2)).expect("an answer to tick 2");
+    assert!(repeated.is_repeated());
+    bottom.restamp(1, Timestamp::from_nanos(25_000_000));
+    sim.publish_bottom(&bottom);
+    let next = sim.exchange(&tick(1, 3)).expect("an answer to tick 3");
+    assert_eq!((next.top_sequence, next.bottom_sequence), (2, 1));
+
+    // A new episode starts afresh: the old frames do not count, the clock starts again.
+    let restarted = sim.exchange(&tick(2, 0)).expect("an answer in episode 2");
+    assert!(
+        restarted.is_stop() && !restarted.is_repeated(),
+        "{restarted:?}"
+    );
+    assert_eq!(restarted.timestamp(), Timestamp::from_nanos(10_000_000));
+    assert!(
+        restarted.sequence > next.sequence,
+        "command sequences go on"
+    );
+}
+
+/// The simulator falls silent: stops come after the silence limit; ticks then carry on.
+fn silence_scenario(sim: &mut dyn SimulatorSide) {
+    let mut top = TopFrame::new_boxed();
+    let mut bottom = BottomFrame::new_boxed();
+    top.as_bytes_mut().fill(200);
+    top.restamp(0, Timestamp::from_nanos(1));
+    bottom.restamp(0, Timestamp::from_nanos(1));
+    sim.publish_top(&top);
+    sim.publish_bottom(&bottom);
+    let moving = sim.exchange(&tick(7, 0)).expect("an answer");
+    assert!(!moving.is_stop());
+    let silent_since = Instant::now();
+    let stop = sim
+        .any_command(Duration::from_secs(5))
+        .expect("a stop while the simulator is silent");
+    let waited = silent_since.elapsed();
+    assert!(stop.is_stop(), "{stop:?}");
+    assert!(
+        waited >= Duration::from_millis(100),
+        "no stop before 3 camera periods: {waited:?}"
+    );
+    println!("first stop {waited:?} after the last tick");
+    // The simulator was only slow: the next tick carries on where it was.
+    let resumed = sim
+        .exchange(&tick(7, 1))
+        .expect("an answer after the silence");
+    assert!(resumed.is_repeated() && !resumed.is_stop(), "{resumed:?}");
+    assert_eq!(resumed.speed, moving.speed);
+}
+
+/// One domain per test, named after it (and the word size: the emulated 32-bit robot's
+/// tests must not open a 64-bit run's leftovers), so a crashed run's files are cleaned up
+/// by the next run instead of piling up.
+fn domain(test: &str) -> Domain {
+    Domain::new(Some(&format!("test-{test}-{}", usize::BITS))).expect("domain")
+}
+
+fn over_iceoryx2(test: &str, scenario: fn(&mut dyn SimulatorSide)) -> u64 {
+    let domain = domain(test);
+    let controller_domain = domain.clone();
+    let controller = spawn_controller(move || {
+        Iceoryx2ControllerPorts::open(&controller_domain).expect("controller ports")
+    });
+    let mut sim = Iceoryx2SimulatorPorts::open(&domain, "test-simulator").expect("simulator ports");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !sim.controller_connected() {
+        assert!(Instant::now() < deadline, "the controller never connected");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    scenario(&mut sim);
+    controller.stop()
+}
+
+fn over_channels(scenario: fn(&mut dyn SimulatorSide)) -> u64 {
+    let (controller_ports, mut sim) = channel_transport();
+    let controller = spawn_controller(move || controller_ports);
+    scenario(&mut sim);
+    controller.stop()
+}
+
+#[test]
+fn lock_step_over_iceoryx2() {
+    over_iceoryx2("lock-step", lock_step_scenario);
+}
+
+#[test]
+fn lock_step_over_channels() {
+    over_channels(lock_step_scenario);
+}
+
+#[test]
+fn a_silent_simulator_gets_stops_over_iceoryx2() {
+    assert!(over_iceoryx2("silence", silence_scenario) > 0);
+}
+
+#[test]
+fn a_silent_simulator_gets_stops_over_channels() {
+    assert!(over_channels(silence_scenario) > 0);
+}
+
+#[test]
+fn a_second_controller_in_a_domain_is_refused() {
+    let domain = domain("second");
+    let _first = Iceoryx2ControllerPorts::open(&domain).expect("the first controller");
+    let error = Iceoryx2ControllerPorts::open(&domain).expect_err("a second controller");
+    assert!(
+        error.to_string().contains("another controller"),
+        "says why: {error}"
+    );
+}
+
+#[test]
+fn domain_names_are_checked() {
+    assert!(Domain::new(Some("robot-3_field_A")).is_ok());
+    for bad in ["", "a/b", "has space", &"x".repeat(33)] {
+        assert!(Domain::new(Some(bad)).is_err(), "{bad:?}");
+    }
+}

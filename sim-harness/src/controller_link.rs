@@ -1,0 +1,343 @@
+//! The simulator's side of the controller, in lock-step: it publishes the frames as the
+//! cameras take them and a tick every motion cycle, then waits for the command answering
+//! the tick. The controller runs in another process over iceoryx2 ([`Iceoryx2Link`]) or
+//! in a thread over channels ([`ThreadLink`]); either way it is the same controller code,
+//! [`ControllerNode::run_lock_step`].
+
+use std::process::Child;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use dribble_controller::policy::PolicyLoadError;
+use dribble_controller::transport::channel::{ChannelSimulatorPorts, channel_transport};
+use dribble_controller::transport::ipc::{
+    CONTROLLER_NODE, Domain, Iceoryx2SimulatorPorts, NodeInfo, SIMULATOR_NODE,
+};
+use dribble_controller::transport::{ControllerNode, LockStepTick, TransportError};
+use dribble_controller::{
+    BottomFrame, ControlLoop, LoopConfig, ManualClock, MotionCommand, Policy, TopFrame,
+};
+
+/// The link to the controller failed; the episode cannot go on.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    #[error("the controller died: {0}")]
+    ControllerDied(String),
+    #[error("the controller did not answer tick {index} (t = {time_s:.3} s) within {timeout:?}")]
+    NoAnswer {
+        index: u64,
+        time_s: f64,
+        timeout: Duration,
+    },
+    #[error("the controller could not start: {0}")]
+    Start(String),
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+}
+
+/// How long to wait for the controller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LinkTimeouts {
+    /// For the answer to one tick, while the controller is alive.
+    pub answer: Duration,
+    /// Between two checks that the controller is alive while waiting: a killed
+    /// controller is noticed within about this long.
+    pub liveness: Duration,
+    /// For a controller process to start and open its ports.
+    pub start: Duration,
+}
+
+impl Default for LinkTimeouts {
+    fn default() -> Self {
+        Self {
+            answer: Duration::from_secs(2),
+            liveness: Duration::from_millis(10),
+            start: Duration::from_secs(20),
+        }
+    }
+}
+
+/// A controller the simulator drives in lock-step.
+pub trait ControllerLink {
+    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), LinkError>;
+    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), LinkError>;
+    /// Publishes `tick` and returns the command that answers it.
+    fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError>;
+}
+
+/// The controller in a thread of this process, over crossbeam channels.
+#[derive(Debug)]
+pub struct ThreadLink {
+    ports: ChannelSimulatorPorts,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<Result<(), TransportError>>>,
+    timeouts: LinkTimeouts,
+}
+
+impl ThreadLink {
+    /// Starts the controller thread; `load` makes its policy there (tract plans need not
+    /// cross threads), and its error comes back here.
+    pub fn spawn<L>(config: LoopConfig, load: L, timeouts: LinkTimeouts) -> Result<Self, LinkError>
+    where
+        L: FnOnce() -> Result<Box<dyn Policy>, PolicyLoadError> + Send + 'static,
+    {
+        let (controller_ports, ports) = channel_transport();
+        let stop = Arc::new(AtomicBool::new(false));
+        let (loaded_tx, loaded_rx) = crossbeam_channel::bounded(1);
+        let thread_stop = Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name("dribble-controller".into())
+            .spawn(move || {
+                let policy = match load() {
+                    Ok(policy) => {
+                        let _ = loaded_tx.send(Ok(()));
+                        policy
+                    }
+                    Err(error) => {
+                        let _ = loaded_tx.send(Err(error.to_string()));
+                        return Ok(());
+                    }
+                };
+                let control = ControlLoop::new(config, policy, ManualClock::default());
+                ControllerNode::new(control, controller_ports).run_lock_step(&thread_stop, |_| {})
+            })
+            .map_err(|e| LinkError::Start(e.to_string()))?;
+        match loaded_rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(message)) => return Err(LinkError::Start(message)),
+            Err(_) => return Err(LinkError::Start("the controller thread panicked".into())),
+        }
+        Ok(Self {
+            ports,
+            stop,
+            thread: Some(thread),
+            timeouts,
+        })
+    }
+}
+
+impl ControllerLink for ThreadLink {
+    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), LinkError> {
+        Ok(self.ports.publish_top(frame)?)
+    }
+
+    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), LinkError> {
+        Ok(self.ports.publish_bottom(frame)?)
+    }
+
+    fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError> {
+        self.ports.discard_commands();
+        self.ports.publish_tick(tick)?;
+        match self.ports.answer(tick, self.timeouts.answer) {
+            Ok(Some(command)) => Ok(command),
+            Ok(None) => Err(no_answer(tick, self.timeouts.answer)),
+            Err(TransportError::Disconnected(_)) => Err(LinkError::ControllerDied(
+                "the controller thread ended".into(),
+            )),
+            Err(other) => Err(other.into()),
+        }
+    }
+}
+
+impl Drop for ThreadLink {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+fn no_answer(tick: &LockStepTick, timeout: Duration) -> LinkError {
+    LinkError::NoAnswer {
+        index: tick.index,
+        time_s: tick.time_ns as f64 / 1e9,
+        timeout,
+    }
+}
+
+/// The controller process, over iceoryx2 shared memory.
+#[derive(Debug)]
+pub struct Iceoryx2Link {
+    domain: Domain,
+    ports: Iceoryx2SimulatorPorts,
+    controller: NodeInfo,
+    child: Option<Child>,
+    timeouts: LinkTimeouts,
+}
+
+impl Iceoryx2Link {
+    /// Connects to the controller running in `domain`, or, when none runs, starts
+    /// `spawn` (a `dribble-controller run --clock simulation ...` command) and waits
+    /// until its ports are open.
+    pub fn connect(
+        domain: &Domain,
+        spawn: Option<&mut std::process::Command>,
+        timeouts: LinkTimeouts,
+    ) -> Result<Self, LinkError> {
+        let ports = Iceoryx2SimulatorPorts::open(domain, SIMULATOR_NODE)?;
+        let mut child = None;
+        if running_controller(domain)?.is_none() {
+            let Some(command) = spawn else {
+                return Err(LinkError::Start(format!(
+                    "no controller runs in domain {}",
+                    domain.name()
+                )));
+            };
+            child = Some(
+                command
+                    .spawn()
+                    .map_err(|e| LinkError::Start(format!("{command:?}: {e}")))?,
+            );
+        }
+        let started = Instant::now();
+        loop {
+            if let Some(child) = child.as_mut()
+                && let Ok(Some(status)) = child.try_wait()
+            {
+                return Err(LinkError::Start(format!("it exited with {status}")));
+            }
+            if let Some(controller) = running_controller(domain)?
+                && ports.controller_connected()
+            {
+                return Ok(Self {
+                    domain: domain.clone(),
+                    ports,
+                    controller,
+                    child,
+                    timeouts,
+                });
+            }
+            if started.elapsed() > timeouts.start {
+                if let Some(mut child) = child {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                }
+                return Err(LinkError::Start(format!(
+                    "its ports did not open within {:?}",
+                    timeouts.start
+                )));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// How many dead nodes (killed processes) opening this link cleaned up after.
+    pub fn cleaned_dead_nodes(&self) -> u64 {
+        self.ports.cleaned_dead_nodes()
+    }
+
+    /// The controller's process id.
+    pub fn controller_pid(&self) -> Option<i32> {
+        self.controller.pid
+    }
+
+    /// Whether this link started the controller (and stops it when dropped).
+    pub fn owns_controller(&self) -> bool {
+        self.child.is_some()
+    }
+
+    /// Whether the controller still runs; a killed process is noticed at once.
+    pub fn controller_alive(&mut self) -> Result<bool, LinkError> {
+        if let Some(child) = self.child.as_mut()
+            && !matches!(child.try_wait(), Ok(None))
+        {
+            return Ok(false);
+        }
+        Ok(self.domain.is_alive(self.controller.id)?)
+    }
+
+    /// Stops a controller this link started (SIGTERM, so it prints its statistics) and
+    /// waits for it; a controller that does not stop within 5 s is killed.
+    pub fn stop_controller(&mut self) -> Option<std::process::ExitStatus> {
+        let mut child = self.child.take()?;
+        if let Ok(pid) = libc_pid(child.id()) {
+            terminate(pid);
+        }
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            match child.try_wait() {
+                Ok(Some(status)) => return Some(status),
+                Ok(None) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                _ => {
+                    let _ = child.kill();
+                    return child.wait().ok();
+                }
+            }
+        }
+    }
+}
+
+impl ControllerLink for Iceoryx2Link {
+    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), LinkError> {
+        Ok(self.ports.publish_top(frame)?)
+    }
+
+    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), LinkError> {
+        Ok(self.ports.publish_bottom(frame)?)
+    }
+
+    fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError> {
+        self.ports.discard_commands()?;
+        self.ports.publish_tick(tick)?;
+        let deadline = Instant::now() + self.timeouts.answer;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let slice = left.min(self.timeouts.liveness);
+            if let Some(command) = self.ports.answer(tick, slice)? {
+                return Ok(command);
+            }
+            if !self.controller_alive()? {
+                return Err(LinkError::ControllerDied(format!(
+                    "process {} is gone",
+                    self.controller.pid.unwrap_or(-1)
+                )));
+            }
+            if left.is_zero() {
+                return Err(no_answer(tick, self.timeouts.answer));
+            }
+        }
+    }
+}
+
+impl Drop for Iceoryx2Link {
+    fn drop(&mut self) {
+        self.stop_controller();
+    }
+}
+
+/// The one live controller of `domain`, if any.
+fn running_controller(domain: &Domain) -> Result<Option<NodeInfo>, LinkError> {
+    let alive: Vec<NodeInfo> = domain
+        .nodes_named(CONTROLLER_NODE)?
+        .into_iter()
+        .filter(|node| node.alive)
+        .collect();
+    match alive.as_slice() {
+        [] => Ok(None),
+        [one] => Ok(Some(*one)),
+        many => Err(LinkError::Start(format!(
+            "{} controllers run in domain {} (pids {:?}); stop all but one",
+            many.len(),
+            domain.name(),
+            many.iter().map(|n| n.pid).collect::<Vec<_>>()
+        ))),
+    }
+}
+
+fn libc_pid(id: u32) -> Result<libc::pid_t, std::num::TryFromIntError> {
+    libc::pid_t::try_from(id)
+}
+
+/// Sends SIGTERM (std's `Child::kill` only sends SIGKILL).
+fn terminate(pid: libc::pid_t) {
+    // SAFETY: kill(2) with a pid of our own child and a valid signal number.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::kill(pid, libc::SIGTERM);
+    }
+}

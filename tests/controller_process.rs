@@ -1,0 +1,358 @@
+//! The controller as its own process over iceoryx2, against real processes that die.
+//!
+//! Every test uses an iceoryx2 domain of its own. The fault tests measure how fast a death
+//! is noticed, so they run one at a time, not beside each other's rendering.
+
+mod support;
+
+use std::fs::File;
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use dribble_controller::transport::ipc::{CONTROLLER_NODE, CommandMonitor, Domain};
+use dribble_sim::controller_link::{Iceoryx2Link, LinkTimeouts};
+use dribble_sim::dataset::Outcome;
+use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::runner::{Driver, EpisodeConfig, run_episode};
+use serde_json::Value;
+use support::{controller_binary, domain_name, fixture_manifest, scratch, wait_for_text};
+
+const START: Duration = Duration::from_secs(60);
+
+/// Held by each test that measures reaction times, so that they run one at a time.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// A child process that is killed if the test fails before it is stopped.
+struct Guarded(Option<Child>);
+
+impl Guarded {
+    fn child(&mut self) -> &mut Child {
+        self.0.as_mut().expect("still running")
+    }
+
+    fn take(mut self) -> Child {
+        self.0.take().expect("still running")
+    }
+}
+
+impl Drop for Guarded {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.0.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// A `dribble-controller run --clock simulation` in `domain`, logging into `dir`.
+fn start_controller(domain: &str, dir: &Path, name: &str, policy: Option<&Path>) -> Guarded {
+    let log = dir.join(format!("{name}.log"));
+    let mut command = Command::new(controller_binary());
+    command
+        .args(["run", "--clock", "simulation", "--domain", domain])
+        .stdin(Stdio::null())
+        .stdout(File::create(dir.join(format!("{name}.out"))).expect("stdout file"))
+        .stderr(File::create(&log).expect("log file"));
+    if let Some(policy) = policy {
+        command.arg("--policy").arg(policy);
+    }
+    let child = Guarded(Some(command.spawn().expect("the controller starts")));
+    wait_for_text(&log, "event=ready", START);
+    child
+}
+
+fn signal(child: &Child, signal: libc::c_int) {
+    let pid = libc::pid_t::try_from(child.id()).expect("a pid");
+    // SAFETY: kill(2) on our own child with a valid signal.
+    #[allow(unsafe_code)]
+    let result = unsafe { libc::kill(pid, signal) };
+    assert_eq!(result, 0, "signal {signal} to {pid}");
+}
+
+/// Stops `child` with `sig` and returns its exit status once it is gone.
+fn stop_with(mut child: Child, sig: libc::c_int) -> std::process::ExitStatus {
+    signal(&child, sig);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            return status;
+        }
+        assert!(Instant::now() < deadline, "the controller did not stop");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn dribble(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dribble"))
+        .args(args)
+        .output()
+        .expect("dribble runs")
+}
+
+fn text(output: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    )
+}
+
+fn eval_trajectories(dir: &Path, name: &str, extra: &[&str]) -> (Value, String) {
+    let json = dir.join(format!("{name}.json"));
+    let plot = dir.join(format!("{name}.png"));
+    let log = dir.join(format!("{name}-controller.log"));
+    let policy = fixture_manifest("rcnn");
+    let mut args = vec![
+        "eval",
+        "--driver",
+        policy.to_str().expect("utf-8 path"),
+        "--episodes",
+        "10000..10003",
+        "--time-limit",
+        "4",
+        "--trajectories",
+        json.to_str().expect("utf-8 path"),
+        "--plot",
+        plot.to_str().expect("utf-8 path"),
+        "--controller-log",
+        log.to_str().expect("utf-8 path"),
+    ];
+    args.extend_from_slice(extra);
+    let output = dribble(&args);
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    let value = serde_json::from_str(&std::fs::read_to_string(json).expect("trajectories"))
+        .expect("valid JSON");
+    (value, said)
+}
+
+#[test]
+fn both_transports_give_identical_trajectories() {
+    let _serial = one_at_a_time();
+    let dir = scratch("transports");
+    let domain = domain_name("identity");
+    let controller = controller_binary();
+    let (over_ipc, said) = eval_trajectories(
+        &dir,
+        "iceoryx2",
+        &[
+            "--transport",
+            "iceoryx2",
+            "--domain",
+            &domain,
+            "--controller",
+            controller.to_str().expect("utf-8 path"),
+        ],
+    );
+    assert!(said.contains("controller: started"), "{said}");
+    assert!(said.contains("controller statistics"), "{said}");
+    let (in_process, _) = eval_trajectories(&dir, "in-process", &["--transport", "in-process"]);
+    assert_eq!(
+        over_ipc, in_process,
+        "the same seeds, the same trajectories"
+    );
+
+    // The comparison means something: the robot moved, and differently per seed.
+    let episodes = over_ipc["episodes"].as_array().expect("episodes");
+    assert_eq!(episodes.len(), 3);
+    let robot = |episode: &Value| episode["robot"].as_array().expect("robot path").clone();
+    for (i, episode) in episodes.iter().enumerate() {
+        let path = robot(episode);
+        assert!(path.len() > 30, "4 s at 10 Hz");
+        assert_ne!(path.first(), path.last(), "episode {i}: the robot moved");
+        assert!(episode["computed_commands"].as_u64() > Some(100));
+    }
+    assert_ne!(robot(&episodes[0]), robot(&episodes[1]));
+}
+
+#[test]
+fn a_killed_controller_fails_the_episode_within_100_ms() {
+    let _serial = one_at_a_time();
+    let dir = scratch("killed-controller");
+    let name = domain_name("killed");
+    let domain = Domain::new(Some(&name)).expect("domain");
+    let mut controller = start_controller(&name, &dir, "controller", None).take();
+    let mut link = Iceoryx2Link::connect(&domain, None, LinkTimeouts::default()).expect("connects");
+    assert!(!link.owns_controller());
+
+    // Kill it (SIGKILL: no chance to clean up) while the episode runs.
+    let (killed_tx, killed_rx) = mpsc::channel();
+    let pid = controller.id();
+    let killer = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(300));
+        controller.kill().expect("kill");
+        killed_tx.send(Instant::now()).expect("send");
+        controller.wait().expect("reaped")
+    });
+    let config = EpisodeConfig {
+        time_limit_s: 90.0,
+        ..EpisodeConfig::default()
+    };
+    let setup = EpisodeSetup::from_seed(10001);
+    let result = run_episode(&setup, &config, Driver::Controller(&mut link), None, None)
+        .expect("no rendering error");
+    let ended = Instant::now();
+    let killed_at = killed_rx.recv().expect("killed");
+    killer.join().expect("killer");
+    let noticed = ended.saturating_duration_since(killed_at);
+    println!("a killed controller (pid {pid}) was noticed {noticed:?} after the kill");
+    assert_eq!(result.outcome, Outcome::ControllerLost);
+    let failure = result.failure.expect("a reason");
+    assert!(failure.contains("died"), "{failure}");
+    assert!(
+        noticed < Duration::from_millis(100),
+        "noticed after {noticed:?}"
+    );
+}
+
+#[test]
+fn a_dead_simulator_gets_stops_and_a_new_one_carries_on() {
+    let _serial = one_at_a_time();
+    let dir = scratch("dead-simulator");
+    let name = domain_name("deadsim");
+    let domain = Domain::new(Some(&name)).expect("domain");
+    let controller = start_controller(&name, &dir, "controller", Some(&fixture_manifest("cnn")));
+    let mut monitor = CommandMonitor::open(&domain, "test-monitor").expect("monitor");
+
+    // A simulator process plays a long episode against the running controller...
+    let policy = fixture_manifest("cnn");
+    let plot = dir.join("first.png");
+    let mut simulator = Guarded(Some(
+        Command::new(env!("CARGO_BIN_EXE_dribble"))
+            .args(["eval", "--domain", &name, "--episodes", "10000..10001"])
+            .args(["--time-limit", "90", "--driver"])
+            .arg(&policy)
+            .arg("--plot")
+            .arg(&plot)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the simulator starts"),
+    ));
+    // ...until the controller computes from its frames; then it is killed.
+    let deadline = Instant::now() + START;
+    loop {
+        if let Some(command) = monitor.try_next().expect("receive")
+            && command.is_new()
+        {
+            break;
+        }
+        assert!(Instant::now() < deadline, "no command computed from frames");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    simulator.child().kill().expect("kill the simulator");
+    let killed_at = Instant::now();
+    simulator.child().wait().expect("reaped");
+    while monitor.try_next().expect("receive").is_some() {}
+    let first_stop = loop {
+        if let Some(command) = monitor.try_next().expect("receive") {
+            break command;
+        }
+        assert!(killed_at.elapsed() < Duration::from_secs(5), "no stop");
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    let after = killed_at.elapsed();
+    println!("first stop {after:?} after the simulator was killed");
+    assert!(first_stop.is_stop(), "{first_stop:?}");
+    assert!(after < Duration::from_millis(300), "stop after {after:?}");
+    for _ in 0..3 {
+        std::thread::sleep(Duration::from_millis(15));
+        let next = monitor.try_next().expect("receive");
+        assert!(next.is_none_or(|c| c.is_stop()), "only stops: {next:?}");
+    }
+
+    // A new simulator finds the controller waiting, and cleans up after the dead one.
+    let output = dribble(&[
+        "eval",
+        "--domain",
+        &name,
+        "--episodes",
+        "10002..10003",
+        "--time-limit",
+        "2",
+        "--driver",
+        policy.to_str().expect("utf-8 path"),
+        "--plot",
+        dir.join("second.png").to_str().expect("utf-8 path"),
+    ]);
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    assert!(said.contains("using the one already running"), "{said}");
+    assert!(said.contains("cleaned up after 1 dead process"), "{said}");
+    assert!(
+        said.contains("time limit"),
+        "the episode ran to its end: {said}"
+    );
+
+    let status = stop_with(controller.take(), libc::SIGTERM);
+    assert!(status.success(), "a clean stop: {status}");
+    let log = std::fs::read_to_string(dir.join("controller.log")).expect("log");
+    assert!(log.contains("event=simulator_silent"), "{log}");
+    assert!(log.contains("event=simulator_back"), "{log}");
+    assert!(log.contains("event=stopped"), "{log}");
+    let statistics = std::fs::read_to_string(dir.join("controller.out")).expect("stdout");
+    assert!(statistics.contains("tick time: p50"), "{statistics}");
+    assert!(statistics.contains("overruns"), "{statistics}");
+}
+
+#[test]
+fn a_killed_controller_is_cleaned_up_at_the_next_start() {
+    let _serial = one_at_a_time();
+    let dir = scratch("cleanup");
+    let name = domain_name("cleanup");
+    let domain = Domain::new(Some(&name)).expect("domain");
+    let mut first = start_controller(&name, &dir, "first", None);
+    first.child().kill().expect("kill");
+    first.child().wait().expect("reaped");
+    let left = domain.nodes_named(CONTROLLER_NODE).expect("list");
+    assert_eq!(
+        left.len(),
+        1,
+        "the killed controller left its node: {left:?}"
+    );
+    assert!(!left[0].alive);
+
+    let mut second = start_controller(&name, &dir, "second", None);
+    let log = std::fs::read_to_string(dir.join("second.log")).expect("log");
+    assert!(log.contains("cleaned_dead_nodes=1"), "{log}");
+    let nodes = domain.nodes_named(CONTROLLER_NODE).expect("list");
+    assert_eq!(nodes.len(), 1, "{nodes:?}");
+    assert!(nodes[0].alive && nodes[0].pid == i32::try_from(second.child().id()).ok());
+
+    // The new controller serves (its command port was free again).
+    let mut link = Iceoryx2Link::connect(&domain, None, LinkTimeouts::default()).expect("connects");
+    let config = EpisodeConfig {
+        time_limit_s: 1.0,
+        ..EpisodeConfig::default()
+    };
+    let result = run_episode(
+        &EpisodeSetup::from_seed(10000),
+        &config,
+        Driver::Controller(&mut link),
+        None,
+        None,
+    )
+    .expect("runs");
+    assert_eq!(result.outcome, Outcome::TimeLimit, "{:?}", result.failure);
+    drop(link);
+
+    // SIGINT stops it as cleanly as SIGTERM, with its statistics.
+    let status = stop_with(second.take(), libc::SIGINT);
+    assert!(status.success(), "{status}");
+    let statistics = std::fs::read_to_string(dir.join("second.out")).expect("stdout");
+    assert!(statistics.contains("ticks 100:"), "{statistics}");
+    assert!(
+        domain
+            .nodes_named(CONTROLLER_NODE)
+            .expect("list")
+            .is_empty()
+    );
+}
