@@ -7,7 +7,7 @@
 //! in a thread over channels. The scripted expert reads ground truth, so it always runs
 //! inside the simulator.
 
-use std::fs::File;
+use std::fs::{File, OpenOptions};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -147,6 +147,15 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let mut results: Vec<EpisodeResult> = Vec::new();
     let mut latency = TickStats::new(config.control.budget);
     let mut session: Option<Session> = None;
+    if policy_path.is_some() && args.transport == Transport::Iceoryx2 {
+        // This run's controllers log here, one after another.
+        File::create(&args.controller_log).with_context(|| {
+            format!(
+                "cannot write the controller log {}",
+                args.controller_log.display()
+            )
+        })?;
+    }
     for seed in args.episodes.0.clone() {
         let setup = EpisodeSetup::from_seed(seed);
         let result = match &policy_path {
@@ -261,12 +270,17 @@ fn open_session(
                 None => Domain::from_env()?,
             };
             let binary = controller_binary(args.controller.as_deref())?;
-            let log = File::create(&args.controller_log).with_context(|| {
-                format!(
-                    "cannot write the controller log {}",
-                    args.controller_log.display()
-                )
-            })?;
+            // Appended to: a controller started after one was lost keeps the first one's log.
+            let log = OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(&args.controller_log)
+                .with_context(|| {
+                    format!(
+                        "cannot write the controller log {}",
+                        args.controller_log.display()
+                    )
+                })?;
             let mut command = Command::new(&binary);
             command
                 .arg("--rate-hz")

@@ -356,3 +356,79 @@ fn a_killed_controller_is_cleaned_up_at_the_next_start() {
             .is_empty()
     );
 }
+
+#[test]
+fn eval_reports_a_lost_controller_and_starts_a_new_one() {
+    let _serial = one_at_a_time();
+    let dir = scratch("eval-restart");
+    let name = domain_name("eval-restart");
+    let policy = fixture_manifest("cnn");
+    let mut eval = Guarded(Some(
+        Command::new(env!("CARGO_BIN_EXE_dribble"))
+            .args(["eval", "--domain", &name, "--episodes", "10000..10002"])
+            .args(["--time-limit", "20", "--driver"])
+            .arg(&policy)
+            .arg("--controller")
+            .arg(controller_binary())
+            .arg("--controller-log")
+            .arg(dir.join("controller.log"))
+            .arg("--plot")
+            .arg(dir.join("plot.png"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("eval starts"),
+    ));
+    let stdout = eval.child().stdout.take().expect("stdout");
+    let (lines_tx, lines_rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufRead::lines(std::io::BufReader::new(stdout)).map_while(Result::ok) {
+            let _ = lines_tx.send(line);
+        }
+    });
+    // "controller: started <binary> (pid N, ...)": kill that process during episode 1.
+    let started = loop {
+        let line = lines_rx
+            .recv_timeout(START)
+            .expect("eval starts a controller");
+        if line.starts_with("controller: started") {
+            break line;
+        }
+    };
+    let pid: libc::pid_t = started
+        .split("(pid ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .and_then(|pid| pid.parse().ok())
+        .unwrap_or_else(|| panic!("no pid in {started:?}"));
+    std::thread::sleep(Duration::from_millis(500));
+    // SAFETY: kill(2) on the controller eval started; SIGKILL, as a crash would.
+    #[allow(unsafe_code)]
+    let killed = unsafe { libc::kill(pid, libc::SIGKILL) };
+    assert_eq!(killed, 0);
+    let status = eval.child().wait().expect("eval ends");
+    let said: Vec<String> = lines_rx.try_iter().collect();
+    let said = said.join("\n");
+    assert!(status.success(), "{said}");
+    let episode = |seed: &str| {
+        said.lines()
+            .find(|l| l.trim_start().starts_with(seed))
+            .unwrap_or_else(|| panic!("no episode {seed} in {said}"))
+            .to_owned()
+    };
+    assert!(episode("10000").contains("controller lost"), "{said}");
+    assert!(said.contains("the controller died"), "{said}");
+    assert!(
+        episode("10001").contains("time limit"),
+        "a new controller drove: {said}"
+    );
+    // The first "started" line was read above: this one is the replacement.
+    assert_eq!(said.matches("controller: started").count(), 1, "{said}");
+    assert!(
+        said.contains("episodes failed because the controller was lost: 1"),
+        "{said}"
+    );
+    // Both controllers' logs are kept.
+    let log = std::fs::read_to_string(dir.join("controller.log")).expect("log");
+    assert_eq!(log.matches("event=ready").count(), 2, "{log}");
+}
