@@ -20,7 +20,9 @@ use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::tick_stats::TickStats;
 use dribble_controller::transport::channel::channel_transport;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts, Iceoryx2SimulatorPorts};
-use dribble_controller::transport::{ControllerNode, ControllerPorts, LockStepTick};
+use dribble_controller::transport::{
+    ControllerNode, ControllerPorts, LockStepTick, SimulatorPorts,
+};
 use dribble_controller::{
     BottomFrame, Clock, ControlLoop, LoopConfig, ManualClock, MonotonicClock, Timestamp, TopFrame,
 };
@@ -98,37 +100,22 @@ fn frame_latency(c: &mut Criterion) {
     receiver.join().expect("receiver");
 }
 
-/// What the simulator does per lock-step tick, over either transport.
-trait LockStep {
-    fn round_trip(&mut self, top: &TopFrame, bottom: &BottomFrame, tick: &LockStepTick);
-}
-
-impl LockStep for Iceoryx2SimulatorPorts {
-    fn round_trip(&mut self, top: &TopFrame, bottom: &BottomFrame, tick: &LockStepTick) {
-        self.discard_commands().expect("discard");
-        self.publish_top(top).expect("top");
-        self.publish_bottom(bottom).expect("bottom");
-        self.publish_tick(tick).expect("tick");
-        while self
-            .answer(tick, Duration::from_millis(100))
-            .expect("answer")
-            .is_none()
-        {}
-    }
-}
-
-impl LockStep for dribble_controller::transport::channel::ChannelSimulatorPorts {
-    fn round_trip(&mut self, top: &TopFrame, bottom: &BottomFrame, tick: &LockStepTick) {
-        self.discard_commands();
-        self.publish_top(top).expect("top");
-        self.publish_bottom(bottom).expect("bottom");
-        self.publish_tick(tick).expect("tick");
-        while self
-            .answer(tick, Duration::from_millis(100))
-            .expect("answer")
-            .is_none()
-        {}
-    }
+/// One lock-step round trip as the simulator makes it, over either transport.
+fn round_trip(
+    sim: &mut dyn SimulatorPorts,
+    top: &TopFrame,
+    bottom: &BottomFrame,
+    tick: &LockStepTick,
+) {
+    sim.discard_commands().expect("discard");
+    sim.publish_top(top).expect("top");
+    sim.publish_bottom(bottom).expect("bottom");
+    sim.publish_tick(tick).expect("tick");
+    while sim
+        .answer(tick, Duration::from_millis(100))
+        .expect("answer")
+        .is_none()
+    {}
 }
 
 fn run_controller<T: ControllerPorts>(ports: T, stop: &AtomicBool) {
@@ -142,12 +129,12 @@ fn run_controller<T: ControllerPorts>(ports: T, stop: &AtomicBool) {
         .expect("controller loop");
 }
 
-fn measure_round_trips(c: &mut Criterion, name: &str, sim: &mut dyn LockStep) {
+fn measure_round_trips(c: &mut Criterion, name: &str, sim: &mut dyn SimulatorPorts) {
     let pattern = TestPattern::default();
     let mut top = TopFrame::new_boxed();
     let mut bottom = BottomFrame::new_boxed();
     let mut index = 0;
-    let mut one = |sim: &mut dyn LockStep| -> Duration {
+    let mut one = |sim: &mut dyn SimulatorPorts| -> Duration {
         // Both cameras new each time: every tick computes (thumbnails + policy).
         let time = Timestamp::from_nanos((index + 1) * 10_000_000);
         pattern.paint(&mut top, index, time);
@@ -159,7 +146,7 @@ fn measure_round_trips(c: &mut Criterion, name: &str, sim: &mut dyn LockStep) {
         };
         index += 1;
         let started = Instant::now();
-        sim.round_trip(&top, &bottom, &tick);
+        round_trip(sim, &top, &bottom, &tick);
         started.elapsed()
     };
     let mut stats = TickStats::new(Duration::from_millis(2));

@@ -14,49 +14,28 @@ use dribble_controller::policy::BrightnessPolicy;
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::transport::channel::channel_transport;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts, Iceoryx2SimulatorPorts};
-use dribble_controller::transport::{ControllerNode, ControllerPorts, LockStepTick};
+use dribble_controller::transport::{
+    ControllerNode, ControllerPorts, LockStepTick, SimulatorPorts,
+};
 use dribble_controller::{
-    BottomFrame, CameraInput, ControlLoop, LoopConfig, ManualClock, MotionCommand, Timestamp,
-    TopFrame,
+    BottomFrame, CameraInput, ControlLoop, LoopConfig, ManualClock, Timestamp, TopFrame,
 };
 use support::counting_allocator::{CountingAllocator, count_allocations};
 
 #[global_allocator]
 static ALLOCATOR: CountingAllocator = CountingAllocator;
 
-/// The simulator's half, for either transport.
-trait Simulator {
-    fn publish(&mut self, top: &TopFrame, bottom: &BottomFrame, tick: &LockStepTick);
-    fn answer(&mut self, tick: &LockStepTick) -> Option<MotionCommand>;
-}
-
-impl Simulator for Iceoryx2SimulatorPorts {
-    fn publish(&mut self, top: &TopFrame, bottom: &BottomFrame, tick: &LockStepTick) {
-        self.discard_commands().expect("discard");
-        self.publish_top(top).expect("top");
-        self.publish_bottom(bottom).expect("bottom");
-        self.publish_tick(tick).expect("tick");
-    }
-    fn answer(&mut self, tick: &LockStepTick) -> Option<MotionCommand> {
-        Iceoryx2SimulatorPorts::answer(self, tick, Duration::ZERO).expect("answer")
-    }
-}
-
-impl Simulator for dribble_controller::transport::channel::ChannelSimulatorPorts {
-    fn publish(&mut self, top: &TopFrame, bottom: &BottomFrame, tick: &LockStepTick) {
-        self.discard_commands();
-        self.publish_top(top).expect("top");
-        self.publish_bottom(bottom).expect("bottom");
-        self.publish_tick(tick).expect("tick");
-    }
-    fn answer(&mut self, tick: &LockStepTick) -> Option<MotionCommand> {
-        dribble_controller::transport::channel::ChannelSimulatorPorts::answer(
-            self,
-            tick,
-            Duration::from_secs(1),
-        )
-        .expect("answer")
-    }
+/// The simulator's half of a lock-step tick, over either transport.
+fn publish(
+    sim: &mut dyn SimulatorPorts,
+    top: &TopFrame,
+    bottom: &BottomFrame,
+    tick: &LockStepTick,
+) {
+    sim.discard_commands().expect("discard");
+    sim.publish_top(top).expect("top");
+    sim.publish_bottom(bottom).expect("bottom");
+    sim.publish_tick(tick).expect("tick");
 }
 
 /// Allocations (count, bytes) of the controller's side in `ticks` lock-step ticks after a
@@ -73,7 +52,7 @@ fn add(total: &mut (u64, u64), more: (u64, u64)) {
 }
 
 fn controller_allocations<T: ControllerPorts>(
-    sim: &mut dyn Simulator,
+    sim: &mut dyn SimulatorPorts,
     ports: T,
     ticks: u64,
 ) -> Counted {
@@ -100,7 +79,7 @@ fn controller_allocations<T: ControllerPorts>(
             index,
             time_ns: time.as_nanos(),
         };
-        sim.publish(&top, &bottom, &tick);
+        publish(sim, &top, &bottom, &tick);
         // What `ControllerNode::run_lock_step` and `serve_tick` do, in two counted parts.
         let mut command = None;
         let receive_and_tick = count_allocations(|| {
@@ -123,7 +102,8 @@ fn controller_allocations<T: ControllerPorts>(
             add(&mut counted.receive_and_tick, receive_and_tick);
             add(&mut counted.publish, publish);
         }
-        assert_eq!(sim.answer(&tick), Some(command));
+        let answer = sim.answer(&tick, Duration::from_secs(1)).expect("answer");
+        assert_eq!(answer, Some(command));
     }
     let counters = node.control().counters();
     assert!(counters.new_commands > ticks / 2, "{counters:?}");

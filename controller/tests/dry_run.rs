@@ -1,26 +1,12 @@
 //! The robot binary's dry run: the real loop on the real clock with the test pattern.
 
-use std::process::Command;
+mod support;
 
-/// The controller binary; under `cross/test` it runs on the same emulated CPU as the tests
-/// (`DRIBBLE_TEST_RUNNER`, e.g. `qemu-i386 -cpu n270 ...`).
-fn controller() -> Command {
-    let binary = env!("CARGO_BIN_EXE_dribble-controller");
-    let runner = std::env::var("DRIBBLE_TEST_RUNNER").unwrap_or_default();
-    let mut parts = runner.split_whitespace();
-    match parts.next() {
-        Some(emulator) => {
-            let mut command = Command::new(emulator);
-            command.args(parts).arg(binary);
-            command
-        }
-        None => Command::new(binary),
-    }
-}
+use support::controller_command;
 
 #[test]
 fn dry_run_computes_commands_and_prints_its_statistics() {
-    let output = controller()
+    let output = controller_command()
         .args(["dry-run", "--seconds", "0.5", "--drop-bottom-every", "3"])
         .output()
         .expect("run dribble-controller");
@@ -43,7 +29,7 @@ fn dry_run_computes_commands_and_prints_its_statistics() {
 
 #[test]
 fn a_nonsense_rate_is_refused() {
-    let output = controller()
+    let output = controller_command()
         .args(["--rate-hz", "0", "dry-run"])
         .output()
         .expect("run dribble-controller");

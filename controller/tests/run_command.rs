@@ -2,33 +2,22 @@
 //! it stops cleanly with its statistics. Under `cross/test` the binary runs on the emulated
 //! Atom (`DRIBBLE_TEST_RUNNER`), so this proves the shared-memory path on the robot's CPU.
 
+mod support;
+
+use support::controller_command;
+
 use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use dribble_controller::transport::LockStepTick;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2SimulatorPorts};
+use dribble_controller::transport::{LockStepTick, SimulatorPorts};
 use dribble_controller::{BottomFrame, Timestamp, TopFrame};
-
-/// The controller binary, on the emulated CPU under `cross/test`.
-fn controller() -> Command {
-    let binary = env!("CARGO_BIN_EXE_dribble-controller");
-    let runner = std::env::var("DRIBBLE_TEST_RUNNER").unwrap_or_default();
-    let mut parts = runner.split_whitespace();
-    match parts.next() {
-        Some(emulator) => {
-            let mut command = Command::new(emulator);
-            command.args(parts).arg(binary);
-            command
-        }
-        None => Command::new(binary),
-    }
-}
 
 #[test]
 fn run_answers_lock_step_ticks_and_stops_on_sigterm() {
     let name = format!("test-run-{}", usize::BITS);
-    let mut child = controller()
+    let mut child = controller_command()
         .args(["run", "--clock", "simulation", "--domain", &name])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

@@ -8,73 +8,40 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use dribble_controller::policy::BrightnessPolicy;
-use dribble_controller::transport::channel::{ChannelSimulatorPorts, channel_transport};
+use dribble_controller::transport::channel::channel_transport;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts, Iceoryx2SimulatorPorts};
-use dribble_controller::transport::{ControllerNode, LockStepTick, TransportError};
+use dribble_controller::transport::{ControllerNode, LockStepTick, SimulatorPorts, TransportError};
 use dribble_controller::{
     BottomFrame, ControlLoop, LoopConfig, ManualClock, MotionCommand, Timestamp, TopFrame,
 };
 
-/// What the simulator does with either transport.
-trait SimulatorSide {
-    fn publish_top(&mut self, frame: &TopFrame);
-    fn publish_bottom(&mut self, frame: &BottomFrame);
-    fn exchange(&mut self, tick: &LockStepTick) -> Option<MotionCommand>;
-    /// Any command at all within `timeout` (a watchdog stop has no tick to answer).
-    fn any_command(&mut self, timeout: Duration) -> Option<MotionCommand>;
-}
-
 const ANSWER: Duration = Duration::from_secs(5);
 
-impl SimulatorSide for Iceoryx2SimulatorPorts {
-    fn publish_top(&mut self, frame: &TopFrame) {
-        Iceoryx2SimulatorPorts::publish_top(self, frame).expect("publish top");
-    }
-    fn publish_bottom(&mut self, frame: &BottomFrame) {
-        Iceoryx2SimulatorPorts::publish_bottom(self, frame).expect("publish bottom");
-    }
-    fn exchange(&mut self, tick: &LockStepTick) -> Option<MotionCommand> {
-        self.discard_commands().expect("discard");
-        self.publish_tick(tick).expect("publish tick");
-        let deadline = Instant::now() + ANSWER;
-        while Instant::now() < deadline {
-            if let Some(command) = self
-                .answer(tick, Duration::from_millis(10))
-                .expect("answer")
-            {
-                return Some(command);
-            }
+/// A lock-step exchange as the simulator makes it, over either transport.
+fn exchange(sim: &mut dyn SimulatorPorts, tick: &LockStepTick) -> Option<MotionCommand> {
+    sim.discard_commands().expect("discard");
+    sim.publish_tick(tick).expect("publish tick");
+    let deadline = Instant::now() + ANSWER;
+    while Instant::now() < deadline {
+        if let Some(command) = sim.answer(tick, Duration::from_millis(10)).expect("answer") {
+            return Some(command);
         }
-        None
     }
-    fn any_command(&mut self, timeout: Duration) -> Option<MotionCommand> {
-        let deadline = Instant::now() + timeout;
-        while Instant::now() < deadline {
-            // A tick time no command carries: every command is "stale", so look at them raw.
-            if let Some(command) = self.latest_command().expect("receive") {
-                return Some(command);
-            }
-            std::thread::sleep(Duration::from_millis(2));
-        }
-        None
-    }
+    None
 }
 
-impl SimulatorSide for ChannelSimulatorPorts {
-    fn publish_top(&mut self, frame: &TopFrame) {
-        ChannelSimulatorPorts::publish_top(self, frame).expect("publish top");
+/// Any command at all within `timeout` (a watchdog stop has no tick to answer).
+fn any_command(sim: &mut dyn SimulatorPorts, timeout: Duration) -> Option<MotionCommand> {
+    let deadline = Instant::now() + timeout;
+    while Instant::now() < deadline {
+        if let Some(command) = sim
+            .next_command(Duration::from_millis(10))
+            .expect("receive")
+        {
+            return Some(command);
+        }
     }
-    fn publish_bottom(&mut self, frame: &BottomFrame) {
-        ChannelSimulatorPorts::publish_bottom(self, frame).expect("publish bottom");
-    }
-    fn exchange(&mut self, tick: &LockStepTick) -> Option<MotionCommand> {
-        self.discard_commands();
-        self.publish_tick(tick).expect("publish tick");
-        self.answer(tick, ANSWER).expect("answer")
-    }
-    fn any_command(&mut self, timeout: Duration) -> Option<MotionCommand> {
-        self.latest_command(timeout).expect("receive")
-    }
+    None
 }
 
 struct Controller {
@@ -122,23 +89,23 @@ fn tick(episode: u64, index: u64) -> LockStepTick {
 }
 
 /// The protocol, seen from the simulator.
-fn lock_step_scenario(sim: &mut dyn SimulatorSide) {
+fn lock_step_scenario(sim: &mut dyn SimulatorPorts) {
     let mut top = TopFrame::new_boxed();
     let mut bottom = BottomFrame::new_boxed();
     top.as_bytes_mut().fill(200);
     bottom.as_bytes_mut().fill(230);
 
     // No frames yet: the answer is a stop, stamped with the tick's time.
-    let first = sim.exchange(&tick(1, 0)).expect("an answer to tick 0");
+    let first = exchange(sim, &tick(1, 0)).expect("an answer to tick 0");
     assert!(first.is_stop());
     assert_eq!(first.timestamp(), Timestamp::from_nanos(10_000_000));
 
     // Both cameras: a new command from these very frames.
     top.restamp(0, Timestamp::from_nanos(15_000_000));
     bottom.restamp(0, Timestamp::from_nanos(16_000_000));
-    sim.publish_top(&top);
-    sim.publish_bottom(&bottom);
-    let computed = sim.exchange(&tick(1, 1)).expect("an answer to tick 1");
+    sim.publish_top(&top).expect("top");
+    sim.publish_bottom(&bottom).expect("bottom");
+    let computed = exchange(sim, &tick(1, 1)).expect("an answer to tick 1");
     assert!(computed.is_new() && !computed.is_stop(), "{computed:?}");
     assert_eq!((computed.top_sequence, computed.bottom_sequence), (0, 0));
     assert!(
@@ -148,18 +115,18 @@ fn lock_step_scenario(sim: &mut dyn SimulatorSide) {
 
     // Only the newest of two top frames counts; without a new bottom frame it repeats.
     top.restamp(1, Timestamp::from_nanos(20_000_000));
-    sim.publish_top(&top);
+    sim.publish_top(&top).expect("top");
     top.restamp(2, Timestamp::from_nanos(21_000_000));
-    sim.publish_top(&top);
-    let repeated = sim.exchange(&tick(1, 2)).expect("an answer to tick 2");
+    sim.publish_top(&top).expect("top");
+    let repeated = exchange(sim, &tick(1, 2)).expect("an answer to tick 2");
     assert!(repeated.is_repeated());
     bottom.restamp(1, Timestamp::from_nanos(25_000_000));
-    sim.publish_bottom(&bottom);
-    let next = sim.exchange(&tick(1, 3)).expect("an answer to tick 3");
+    sim.publish_bottom(&bottom).expect("bottom");
+    let next = exchange(sim, &tick(1, 3)).expect("an answer to tick 3");
     assert_eq!((next.top_sequence, next.bottom_sequence), (2, 1));
 
     // A new episode starts afresh: the old frames do not count, the clock starts again.
-    let restarted = sim.exchange(&tick(2, 0)).expect("an answer in episode 2");
+    let restarted = exchange(sim, &tick(2, 0)).expect("an answer in episode 2");
     assert!(
         restarted.is_stop() && !restarted.is_repeated(),
         "{restarted:?}"
@@ -172,21 +139,20 @@ fn lock_step_scenario(sim: &mut dyn SimulatorSide) {
 }
 
 /// The simulator falls silent: stops come after the silence limit; ticks then carry on.
-fn silence_scenario(sim: &mut dyn SimulatorSide) {
+fn silence_scenario(sim: &mut dyn SimulatorPorts) {
     let mut top = TopFrame::new_boxed();
     let mut bottom = BottomFrame::new_boxed();
     top.as_bytes_mut().fill(200);
     top.restamp(0, Timestamp::from_nanos(1));
     bottom.restamp(0, Timestamp::from_nanos(1));
-    sim.publish_top(&top);
-    sim.publish_bottom(&bottom);
+    sim.publish_top(&top).expect("top");
+    sim.publish_bottom(&bottom).expect("bottom");
     // The controller hears the tick after this instant, so its silence starts later.
     let silent_since = Instant::now();
-    let moving = sim.exchange(&tick(7, 0)).expect("an answer");
+    let moving = exchange(sim, &tick(7, 0)).expect("an answer");
     assert!(!moving.is_stop());
-    let stop = sim
-        .any_command(Duration::from_secs(5))
-        .expect("a stop while the simulator is silent");
+    let stop =
+        any_command(sim, Duration::from_secs(5)).expect("a stop while the simulator is silent");
     let waited = silent_since.elapsed();
     assert!(stop.is_stop(), "{stop:?}");
     assert!(
@@ -195,9 +161,7 @@ fn silence_scenario(sim: &mut dyn SimulatorSide) {
     );
     println!("first stop {waited:?} after the last tick");
     // The simulator was only slow: the next tick carries on where it was.
-    let resumed = sim
-        .exchange(&tick(7, 1))
-        .expect("an answer after the silence");
+    let resumed = exchange(sim, &tick(7, 1)).expect("an answer after the silence");
     assert!(resumed.is_repeated() && !resumed.is_stop(), "{resumed:?}");
     assert_eq!(resumed.speed, moving.speed);
 }
@@ -209,7 +173,7 @@ fn domain(test: &str) -> Domain {
     Domain::new(Some(&format!("test-{test}-{}", usize::BITS))).expect("domain")
 }
 
-fn over_iceoryx2(test: &str, scenario: fn(&mut dyn SimulatorSide)) -> u64 {
+fn over_iceoryx2(test: &str, scenario: fn(&mut dyn SimulatorPorts)) -> u64 {
     let domain = domain(test);
     let controller_domain = domain.clone();
     let controller = spawn_controller(move || {
@@ -225,7 +189,7 @@ fn over_iceoryx2(test: &str, scenario: fn(&mut dyn SimulatorSide)) -> u64 {
     controller.stop()
 }
 
-fn over_channels(scenario: fn(&mut dyn SimulatorSide)) -> u64 {
+fn over_channels(scenario: fn(&mut dyn SimulatorPorts)) -> u64 {
     let (controller_ports, mut sim) = channel_transport();
     let controller = spawn_controller(move || controller_ports);
     scenario(&mut sim);
@@ -295,11 +259,11 @@ fn the_fixed_rate_loop_serves_a_live_camera() {
     for sequence in 0..10 {
         top.restamp(sequence, MonotonicClock.now());
         bottom.restamp(sequence, MonotonicClock.now());
-        ChannelSimulatorPorts::publish_top(&mut sim, &top).expect("top");
-        ChannelSimulatorPorts::publish_bottom(&mut sim, &bottom).expect("bottom");
+        sim.publish_top(&top).expect("top");
+        sim.publish_bottom(&bottom).expect("bottom");
         let next_frame = Instant::now() + Duration::from_millis(33);
         while let Some(command) = sim
-            .latest_command(next_frame.saturating_duration_since(Instant::now()))
+            .next_command(next_frame.saturating_duration_since(Instant::now()))
             .expect("receive")
         {
             if command.is_new() {

@@ -15,7 +15,7 @@ use dribble_controller::transport::channel::{ChannelSimulatorPorts, channel_tran
 use dribble_controller::transport::ipc::{
     CONTROLLER_NODE, Domain, Iceoryx2SimulatorPorts, NodeInfo, SIMULATOR_NODE,
 };
-use dribble_controller::transport::{ControllerNode, LockStepTick, TransportError};
+use dribble_controller::transport::{ControllerNode, LockStepTick, SimulatorPorts, TransportError};
 use dribble_controller::{
     BottomFrame, ControlLoop, LoopConfig, ManualClock, MotionCommand, Policy, TopFrame,
 };
@@ -128,16 +128,16 @@ impl ControllerLink for ThreadLink {
     }
 
     fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError> {
-        self.ports.discard_commands();
-        self.ports.publish_tick(tick)?;
-        match self.ports.answer(tick, self.timeouts.answer) {
-            Ok(Some(command)) => Ok(command),
-            Ok(None) => Err(no_answer(tick, self.timeouts.answer)),
-            Err(TransportError::Disconnected(_)) => Err(LinkError::ControllerDied(
-                "the controller thread ended".into(),
-            )),
-            Err(other) => Err(other.into()),
-        }
+        let thread = self.thread.as_ref();
+        exchange_over(&mut self.ports, tick, &self.timeouts, || {
+            if thread.is_none_or(JoinHandle::is_finished) {
+                Err(LinkError::ControllerDied(
+                    "the controller thread ended".into(),
+                ))
+            } else {
+                Ok(())
+            }
+        })
     }
 }
 
@@ -150,11 +150,34 @@ impl Drop for ThreadLink {
     }
 }
 
-fn no_answer(tick: &LockStepTick, timeout: Duration) -> LinkError {
-    LinkError::NoAnswer {
-        index: tick.index,
-        time_s: tick.time_ns as f64 / 1e9,
-        timeout,
+/// One lock-step exchange over `ports`: the tick out, then its answer, waited for in
+/// slices of the liveness interval; between slices `alive` says whether the controller
+/// still runs (an error if not).
+fn exchange_over(
+    ports: &mut impl SimulatorPorts,
+    tick: &LockStepTick,
+    timeouts: &LinkTimeouts,
+    mut alive: impl FnMut() -> Result<(), LinkError>,
+) -> Result<MotionCommand, LinkError> {
+    ports.discard_commands()?;
+    ports.publish_tick(tick)?;
+    let deadline = Instant::now() + timeouts.answer;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match ports.answer(tick, left.min(timeouts.liveness)) {
+            Ok(Some(command)) => return Ok(command),
+            Ok(None) => {}
+            Err(TransportError::Disconnected(_)) => alive()?,
+            Err(other) => return Err(other.into()),
+        }
+        alive()?;
+        if left.is_zero() {
+            return Err(LinkError::NoAnswer {
+                index: tick.index,
+                time_s: tick.time_ns as f64 / 1e9,
+                timeout: timeouts.answer,
+            });
+        }
     }
 }
 
@@ -241,12 +264,7 @@ impl Iceoryx2Link {
 
     /// Whether the controller still runs; a killed process is noticed at once.
     pub fn controller_alive(&mut self) -> Result<bool, LinkError> {
-        if let Some(child) = self.child.as_mut()
-            && !matches!(child.try_wait(), Ok(None))
-        {
-            return Ok(false);
-        }
-        Ok(self.domain.is_alive(self.controller.id)?)
+        controller_alive(&self.domain, self.controller, self.child.as_mut())
     }
 
     /// Stops a controller this link started (SIGTERM, so it prints its statistics) and
@@ -282,25 +300,17 @@ impl ControllerLink for Iceoryx2Link {
     }
 
     fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError> {
-        self.ports.discard_commands()?;
-        self.ports.publish_tick(tick)?;
-        let deadline = Instant::now() + self.timeouts.answer;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let slice = left.min(self.timeouts.liveness);
-            if let Some(command) = self.ports.answer(tick, slice)? {
-                return Ok(command);
-            }
-            if !self.controller_alive()? {
-                return Err(LinkError::ControllerDied(format!(
+        let (domain, controller, child) = (&self.domain, self.controller, &mut self.child);
+        exchange_over(&mut self.ports, tick, &self.timeouts, || {
+            if controller_alive(domain, controller, child.as_mut())? {
+                Ok(())
+            } else {
+                Err(LinkError::ControllerDied(format!(
                     "process {} is gone",
-                    self.controller.pid.unwrap_or(-1)
-                )));
+                    controller.pid.unwrap_or(-1)
+                )))
             }
-            if left.is_zero() {
-                return Err(no_answer(tick, self.timeouts.answer));
-            }
-        }
+        })
     }
 }
 
@@ -308,6 +318,21 @@ impl Drop for Iceoryx2Link {
     fn drop(&mut self) {
         self.stop_controller();
     }
+}
+
+/// Whether `controller` still runs: our child has not exited, and its iceoryx2 node (whose
+/// lock the kernel drops with the process) is alive.
+fn controller_alive(
+    domain: &Domain,
+    controller: NodeInfo,
+    child: Option<&mut Child>,
+) -> Result<bool, LinkError> {
+    if let Some(child) = child
+        && !matches!(child.try_wait(), Ok(None))
+    {
+        return Ok(false);
+    }
+    Ok(domain.is_alive(controller.id)?)
 }
 
 /// The one live controller of `domain`, if any.

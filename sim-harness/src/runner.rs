@@ -163,41 +163,29 @@ pub fn run_episode(
 
     let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
     let (mut top_new, mut bottom_new) = (false, false);
-    let field = *simulation.world().field();
     let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
     let mut tick_times = TickStats::new(config.control.budget);
-    let mut robot_path = Vec::new();
-    let mut ball_path = Vec::new();
-    let mut distance = 0.0;
-    let mut last_position = Vec2::new(setup.robot.x, setup.robot.y);
+    let mut trace = Trace::new(setup);
     let outcome = loop {
         if let Some(camera) = simulation.step() {
-            let (sequence, time) = (simulation.frame_sequence(camera), simulation.time());
-            let model = simulation.camera(camera);
-            let scene = simulation.scene();
+            take_frame(
+                &simulation,
+                camera,
+                renderer.as_deref_mut(),
+                &mut top,
+                &mut bottom,
+            )?;
             match camera {
-                CameraPosition::Top => {
-                    if let Some(renderer) = renderer.as_deref_mut() {
-                        renderer.render(camera, &model, &scene, &mut top)?;
-                    }
-                    top.restamp(sequence, time);
-                    top_new = true;
-                }
-                CameraPosition::Bottom => {
-                    if let Some(renderer) = renderer.as_deref_mut() {
-                        renderer.render(camera, &model, &scene, &mut bottom)?;
-                    }
-                    bottom.restamp(sequence, time);
-                    bottom_new = true;
-                }
+                CameraPosition::Top => top_new = true,
+                CameraPosition::Bottom => bottom_new = true,
             }
         }
-        let steps = simulation.world().steps();
-        let pose = simulation.world().robot_pose();
-        let position = Vec2::new(pose.x, pose.y);
-        distance += (position - last_position).length();
-        last_position = position;
-        if steps.is_multiple_of(STEPS_PER_MOTION_CYCLE) {
+        trace.after_step(&simulation);
+        if simulation
+            .world()
+            .steps()
+            .is_multiple_of(STEPS_PER_MOTION_CYCLE)
+        {
             clock.set(simulation.time());
             channel.borrow_mut().truth = truth(&simulation);
             let input = CameraInput {
@@ -230,37 +218,65 @@ pub fn run_episode(
                 }
             }
         }
-        if steps.is_multiple_of(STEPS_PER_SECOND / 10) {
-            robot_path.push(position);
-            ball_path.push(simulation.world().ball().position.truncate());
-        }
-        let ball = simulation.world().ball().position;
-        if field.is_goal(setup.target_side, ball.x, ball.y) {
-            break Outcome::Goal;
-        }
-        if field.is_out(ball.x, ball.y) {
-            break Outcome::BallOut;
-        }
-        if steps >= limit_steps {
-            break Outcome::TimeLimit;
+        if let Some(outcome) = episode_end(&simulation, setup, limit_steps) {
+            break outcome;
         }
     };
-    robot_path.push(last_position);
-    ball_path.push(simulation.world().ball().position.truncate());
-    Ok(EpisodeResult {
-        setup: *setup,
+    Ok(trace.finish(
+        &simulation,
+        setup,
         outcome,
-        duration_s: simulation.time().as_nanos() as f32 / 1e9,
-        distance_walked_m: distance,
-        robot_path,
-        ball_path,
-        computed_commands: control.counters().new_commands,
+        control.counters().new_commands,
         tick_times,
-        failure: None,
-    })
+        None,
+    ))
 }
 
-/// What `run_linked` keeps track of besides the simulation.
+/// Takes the frame of `camera` that is due now: rendered if there is a renderer, stamped
+/// with its sequence number and time in any case.
+fn take_frame(
+    simulation: &Simulation,
+    camera: CameraPosition,
+    renderer: Option<&mut Renderer>,
+    top: &mut TopFrame,
+    bottom: &mut BottomFrame,
+) -> Result<(), RenderError> {
+    let (sequence, time) = (simulation.frame_sequence(camera), simulation.time());
+    let model = simulation.camera(camera);
+    let scene = simulation.scene();
+    match camera {
+        CameraPosition::Top => {
+            if let Some(renderer) = renderer {
+                renderer.render(camera, &model, &scene, top)?;
+            }
+            top.restamp(sequence, time);
+        }
+        CameraPosition::Bottom => {
+            if let Some(renderer) = renderer {
+                renderer.render(camera, &model, &scene, bottom)?;
+            }
+            bottom.restamp(sequence, time);
+        }
+    }
+    Ok(())
+}
+
+/// How the episode ends at this step, if it does.
+fn episode_end(simulation: &Simulation, setup: &EpisodeSetup, limit_steps: u64) -> Option<Outcome> {
+    let field = simulation.world().field();
+    let ball = simulation.world().ball().position;
+    if field.is_goal(setup.target_side, ball.x, ball.y) {
+        Some(Outcome::Goal)
+    } else if field.is_out(ball.x, ball.y) {
+        Some(Outcome::BallOut)
+    } else if simulation.world().steps() >= limit_steps {
+        Some(Outcome::TimeLimit)
+    } else {
+        None
+    }
+}
+
+/// The robot's and the ball's paths and the distance walked, step by step.
 struct Trace {
     robot_path: Vec<Vec2>,
     ball_path: Vec<Vec2>,
@@ -293,6 +309,31 @@ impl Trace {
                 .push(simulation.world().ball().position.truncate());
         }
     }
+
+    fn finish(
+        mut self,
+        simulation: &Simulation,
+        setup: &EpisodeSetup,
+        outcome: Outcome,
+        computed_commands: u64,
+        tick_times: TickStats,
+        failure: Option<String>,
+    ) -> EpisodeResult {
+        self.robot_path.push(self.last_position);
+        self.ball_path
+            .push(simulation.world().ball().position.truncate());
+        EpisodeResult {
+            setup: *setup,
+            outcome,
+            duration_s: simulation.time().as_nanos() as f32 / 1e9,
+            distance_walked_m: self.distance,
+            robot_path: self.robot_path,
+            ball_path: self.ball_path,
+            computed_commands,
+            tick_times,
+            failure,
+        }
+    }
 }
 
 /// An episode driven by a controller behind a link: frames go out as the cameras take
@@ -307,7 +348,6 @@ fn run_linked(
 ) -> Result<EpisodeResult, RenderError> {
     let mut simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
     let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
-    let field = *simulation.world().field();
     let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
     let mut tick_times = TickStats::new(config.control.budget);
     let mut trace = Trace::new(setup);
@@ -348,23 +388,13 @@ fn run_linked(
     let outcome = loop {
         let camera = simulation.step();
         if let Some(camera) = camera {
-            let (sequence, time) = (simulation.frame_sequence(camera), simulation.time());
-            let model = simulation.camera(camera);
-            let scene = simulation.scene();
-            match camera {
-                CameraPosition::Top => {
-                    if let Some(renderer) = renderer.as_deref_mut() {
-                        renderer.render(camera, &model, &scene, &mut top)?;
-                    }
-                    top.restamp(sequence, time);
-                }
-                CameraPosition::Bottom => {
-                    if let Some(renderer) = renderer.as_deref_mut() {
-                        renderer.render(camera, &model, &scene, &mut bottom)?;
-                    }
-                    bottom.restamp(sequence, time);
-                }
-            }
+            take_frame(
+                &simulation,
+                camera,
+                renderer.as_deref_mut(),
+                &mut top,
+                &mut bottom,
+            )?;
         }
         trace.after_step(&simulation);
         match exchange(&simulation, camera, &top, &bottom) {
@@ -375,30 +405,16 @@ fn run_linked(
                 break Outcome::ControllerLost;
             }
         }
-        let ball = simulation.world().ball().position;
-        if field.is_goal(setup.target_side, ball.x, ball.y) {
-            break Outcome::Goal;
-        }
-        if field.is_out(ball.x, ball.y) {
-            break Outcome::BallOut;
-        }
-        if simulation.world().steps() >= limit_steps {
-            break Outcome::TimeLimit;
+        if let Some(outcome) = episode_end(&simulation, setup, limit_steps) {
+            break outcome;
         }
     };
-    trace.robot_path.push(trace.last_position);
-    trace
-        .ball_path
-        .push(simulation.world().ball().position.truncate());
-    Ok(EpisodeResult {
-        setup: *setup,
+    Ok(trace.finish(
+        &simulation,
+        setup,
         outcome,
-        duration_s: simulation.time().as_nanos() as f32 / 1e9,
-        distance_walked_m: trace.distance,
-        robot_path: trace.robot_path,
-        ball_path: trace.ball_path,
         computed_commands,
         tick_times,
         failure,
-    })
+    ))
 }

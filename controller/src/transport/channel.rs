@@ -9,7 +9,7 @@ use core::time::Duration;
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TryRecvError, bounded};
 
-use super::{ControllerPorts, LockStepTick, TransportError};
+use super::{ControllerPorts, LockStepTick, SimulatorPorts, TransportError};
 use crate::frame::{BottomFrame, CameraFrame, TopFrame};
 use crate::motion_command::MotionCommand;
 
@@ -174,39 +174,27 @@ impl ControllerPorts for ChannelControllerPorts {
     }
 }
 
-impl ChannelSimulatorPorts {
-    pub fn publish_top(&mut self, frame: &TopFrame) -> Result<(), TransportError> {
+impl SimulatorPorts for ChannelSimulatorPorts {
+    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), TransportError> {
         self.top.send(frame)
     }
 
-    pub fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), TransportError> {
+    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), TransportError> {
         self.bottom.send(frame)
     }
 
-    pub fn discard_commands(&mut self) {
+    fn discard_commands(&mut self) -> Result<(), TransportError> {
         while self.commands.try_recv().is_ok() {}
+        Ok(())
     }
 
-    pub fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError> {
+    fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError> {
         self.ticks
             .send(*tick)
             .map_err(|_| TransportError::Disconnected("controller"))
     }
 
-    /// The next command, whatever it answers, waiting at most `timeout` for it.
-    pub fn latest_command(
-        &mut self,
-        timeout: Duration,
-    ) -> Result<Option<MotionCommand>, TransportError> {
-        match self.commands.recv_timeout(timeout) {
-            Ok(command) => Ok(Some(command)),
-            Err(RecvTimeoutError::Timeout) => Ok(None),
-            Err(RecvTimeoutError::Disconnected) => Err(TransportError::Disconnected("controller")),
-        }
-    }
-
-    /// The command answering `tick`, waiting at most `timeout` for it.
-    pub fn answer(
+    fn answer(
         &mut self,
         tick: &LockStepTick,
         timeout: Duration,
@@ -216,11 +204,19 @@ impl ChannelSimulatorPorts {
             match self.commands.recv_deadline(deadline) {
                 Ok(command) if command.timestamp_ns == tick.time_ns => return Ok(Some(command)),
                 Ok(_) => {}
-                Err(crossbeam_channel::RecvTimeoutError::Timeout) => return Ok(None),
-                Err(crossbeam_channel::RecvTimeoutError::Disconnected) => {
+                Err(RecvTimeoutError::Timeout) => return Ok(None),
+                Err(RecvTimeoutError::Disconnected) => {
                     return Err(TransportError::Disconnected("controller"));
                 }
             }
+        }
+    }
+
+    fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
+        match self.commands.recv_timeout(timeout) {
+            Ok(command) => Ok(Some(command)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => Err(TransportError::Disconnected("controller")),
         }
     }
 }

@@ -30,7 +30,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
-use super::{ControllerPorts, LockStepTick, TransportError};
+use super::{ControllerPorts, LockStepTick, SimulatorPorts, TransportError};
 use crate::frame::{BottomFrame, FrameHeader, TopFrame};
 use crate::motion_command::MotionCommand;
 
@@ -405,8 +405,7 @@ impl Iceoryx2ControllerPorts {
     }
 }
 
-/// The other side: what a camera driver and a motion module do on the robot, and what the
-/// simulator does in lock-step (publishes frames and ticks, waits for commands).
+/// The simulator's (or camera driver's and motion module's) side over iceoryx2.
 #[derive(Debug)]
 pub struct Iceoryx2SimulatorPorts {
     node: Node<Ipc>,
@@ -468,17 +467,40 @@ impl Iceoryx2SimulatorPorts {
             && self.top_service.dynamic_config().number_of_subscribers() > 0
     }
 
-    pub fn publish_top(&mut self, frame: &TopFrame) -> Result<(), TransportError> {
+    fn receive_answer(
+        &mut self,
+        tick: &LockStepTick,
+    ) -> Result<Option<MotionCommand>, TransportError> {
+        loop {
+            match self.commands.receive() {
+                Ok(Some(command)) if command.timestamp_ns == tick.time_ns => {
+                    return Ok(Some(*command));
+                }
+                Ok(Some(_)) => {} // a stop from a silent spell: it answers nothing
+                Ok(None) => return Ok(None),
+                Err(e) => return Err(TransportError::ipc("receive failed", e)),
+            }
+        }
+    }
+
+    fn receive_command(&mut self) -> Result<Option<MotionCommand>, TransportError> {
+        match self.commands.receive() {
+            Ok(sample) => Ok(sample.map(|s| *s)),
+            Err(e) => Err(TransportError::ipc("receive failed", e)),
+        }
+    }
+}
+
+impl SimulatorPorts for Iceoryx2SimulatorPorts {
+    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), TransportError> {
         send_frame(&self.top, frame)
     }
 
-    pub fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), TransportError> {
+    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), TransportError> {
         send_frame(&self.bottom, frame)
     }
 
-    /// Throws away commands that answer nothing we wait for (stops published while no
-    /// simulator ticked).
-    pub fn discard_commands(&mut self) -> Result<(), TransportError> {
+    fn discard_commands(&mut self) -> Result<(), TransportError> {
         self.command_events
             .try_wait(|_| {})
             .map_err(|e| TransportError::ipc("cannot read command events", e))?;
@@ -486,7 +508,7 @@ impl Iceoryx2SimulatorPorts {
         Ok(())
     }
 
-    pub fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError> {
+    fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError> {
         self.ticks
             .send_copy(*tick)
             .map_err(|e| TransportError::ipc("cannot publish a tick", e))?;
@@ -496,9 +518,7 @@ impl Iceoryx2SimulatorPorts {
         Ok(())
     }
 
-    /// The command answering `tick` if it has arrived, else waits up to `timeout` for the
-    /// controller to signal one and looks again.
-    pub fn answer(
+    fn answer(
         &mut self,
         tick: &LockStepTick,
         timeout: Duration,
@@ -514,25 +534,16 @@ impl Iceoryx2SimulatorPorts {
         self.receive_answer(tick)
     }
 
-    /// The newest command, whatever it answers (a monitor's view of the motion module).
-    pub fn latest_command(&mut self) -> Result<Option<MotionCommand>, TransportError> {
-        Ok(newest(&self.commands)?.map(|sample| *sample))
-    }
-
-    fn receive_answer(
-        &mut self,
-        tick: &LockStepTick,
-    ) -> Result<Option<MotionCommand>, TransportError> {
-        loop {
-            match self.commands.receive() {
-                Ok(Some(command)) if command.timestamp_ns == tick.time_ns => {
-                    return Ok(Some(*command));
-                }
-                Ok(Some(_)) => {} // a stop from a silent spell: it answers nothing
-                Ok(None) => return Ok(None),
-                Err(e) => return Err(TransportError::ipc("receive failed", e)),
-            }
+    fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
+        if let Some(command) = self.receive_command()? {
+            return Ok(Some(command));
         }
+        wait_for_event(
+            &self.command_events,
+            timeout,
+            "waiting for a command failed",
+        )?;
+        self.receive_command()
     }
 }
 

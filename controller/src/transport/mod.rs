@@ -63,3 +63,29 @@ pub trait ControllerPorts {
     /// Lock-step simulation only: the simulator's next tick, waiting at most `timeout`.
     fn next_tick(&mut self, timeout: Duration) -> Result<Option<LockStepTick>, TransportError>;
 }
+
+/// The other side of a transport: what a camera driver and a motion module do on the robot,
+/// and what the simulator does in lock-step (publishes frames and ticks, waits for commands).
+pub trait SimulatorPorts {
+    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), TransportError>;
+
+    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), TransportError>;
+
+    /// Throws away the commands waiting unread: they answer nothing the simulator waits for
+    /// (stops published while no simulator ticked).
+    fn discard_commands(&mut self) -> Result<(), TransportError>;
+
+    /// Publishes a lock-step tick and wakes the controller.
+    fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError>;
+
+    /// The command answering `tick` (the one stamped with the tick's time), waiting at most
+    /// `timeout` for it.
+    fn answer(
+        &mut self,
+        tick: &LockStepTick,
+        timeout: Duration,
+    ) -> Result<Option<MotionCommand>, TransportError>;
+
+    /// The next command in order, whatever it answers, waiting at most `timeout` for it.
+    fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError>;
+}

@@ -4,6 +4,7 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::process::Command;
 
 use dribble_controller::{BottomThumbnail, TopThumbnail};
 
@@ -75,4 +76,20 @@ pub fn scratch_copy(kind: &str, test: &str) -> PathBuf {
         }
     }
     target
+}
+
+/// The controller binary; under `cross/test` it runs on the same emulated CPU as the tests
+/// (`DRIBBLE_TEST_RUNNER`, e.g. `qemu-i386 -cpu n270 ...`).
+pub fn controller_command() -> Command {
+    let binary = env!("CARGO_BIN_EXE_dribble-controller");
+    let runner = std::env::var("DRIBBLE_TEST_RUNNER").unwrap_or_default();
+    let mut parts = runner.split_whitespace();
+    match parts.next() {
+        Some(emulator) => {
+            let mut command = Command::new(emulator);
+            command.args(parts).arg(binary);
+            command
+        }
+        None => Command::new(binary),
+    }
 }
