@@ -18,7 +18,7 @@ use core::ops::Deref;
 use core::time::Duration;
 
 pub use lock_step::LockStepTick;
-pub use node::{ClockSource, ControllerNode, NodeCounters, NodeEvent};
+pub use node::{ControllerNode, NodeCounters, NodeEvent};
 
 use crate::frame::{BottomFrame, TopFrame};
 use crate::motion_command::MotionCommand;

@@ -1,4 +1,6 @@
-//! The controller process's main loop over any transport.
+//! The controller process's main loop over any transport, on either source of time: the
+//! robot's `CLOCK_MONOTONIC` ([`ControllerNode::run_fixed_rate`]) or a lock-step
+//! simulator's ticks ([`ControllerNode::run_lock_step`]).
 
 use core::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -8,15 +10,6 @@ use crate::clock::{Clock, ManualClock, MonotonicClock};
 use crate::control_loop::{CameraInput, ControlLoop};
 use crate::motion_command::MotionCommand;
 use crate::policy::Policy;
-
-/// Where the controller's time comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ClockSource {
-    /// The robot: a tick every period on `CLOCK_MONOTONIC`, frames taken as they come.
-    Monotonic,
-    /// Lock-step simulation: a tick whenever the simulator publishes one, at its time.
-    Simulation,
-}
 
 /// What happened to the node, for the log. Rare by design: nothing here is per tick.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
