@@ -262,11 +262,6 @@ impl Iceoryx2Link {
         self.child.is_some()
     }
 
-    /// Whether the controller still runs; a killed process is noticed at once.
-    pub fn controller_alive(&mut self) -> Result<bool, LinkError> {
-        controller_alive(&self.domain, self.controller, self.child.as_mut())
-    }
-
     /// Stops a controller this link started (SIGTERM, so it prints its statistics) and
     /// waits for it; a controller that does not stop within 5 s is killed.
     pub fn stop_controller(&mut self) -> Option<std::process::ExitStatus> {

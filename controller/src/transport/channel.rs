@@ -194,24 +194,6 @@ impl SimulatorPorts for ChannelSimulatorPorts {
             .map_err(|_| TransportError::Disconnected("controller"))
     }
 
-    fn answer(
-        &mut self,
-        tick: &LockStepTick,
-        timeout: Duration,
-    ) -> Result<Option<MotionCommand>, TransportError> {
-        let deadline = std::time::Instant::now() + timeout;
-        loop {
-            match self.commands.recv_deadline(deadline) {
-                Ok(command) if command.timestamp_ns == tick.time_ns => return Ok(Some(command)),
-                Ok(_) => {}
-                Err(RecvTimeoutError::Timeout) => return Ok(None),
-                Err(RecvTimeoutError::Disconnected) => {
-                    return Err(TransportError::Disconnected("controller"));
-                }
-            }
-        }
-    }
-
     fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
         match self.commands.recv_timeout(timeout) {
             Ok(command) => Ok(Some(command)),

@@ -28,6 +28,7 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
+use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 use super::{ControllerPorts, LockStepTick, SimulatorPorts, TransportError};
@@ -146,10 +147,6 @@ impl Domain {
         self.name.as_deref().unwrap_or("default")
     }
 
-    pub fn config(&self) -> &Config {
-        &self.config
-    }
-
     /// A node of this domain, after removing what dead nodes left behind; also returns how
     /// many dead nodes were cleaned up.
     pub fn create_node(&self, name: &str) -> Result<(Node<Ipc>, u64), TransportError> {
@@ -245,10 +242,7 @@ fn open_pubsub<T: core::fmt::Debug + ZeroCopySend + 'static>(
         .map_err(|e| TransportError::ipc(name, e))
 }
 
-fn open_event(
-    node: &Node<Ipc>,
-    name: &'static str,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<Ipc>, TransportError> {
+fn open_event(node: &Node<Ipc>, name: &'static str) -> Result<EventFactory<Ipc>, TransportError> {
     let service_name =
         ServiceName::new(name).map_err(|e| TransportError::ipc("invalid service name", e))?;
     node.service_builder(&service_name)
@@ -278,6 +272,82 @@ fn publisher<T: core::fmt::Debug + ZeroCopySend + 'static>(
         .max_loaned_samples(1)
         .create()
         .map_err(|e| TransportError::ipc(name, e))
+}
+
+fn listener(
+    factory: &EventFactory<Ipc>,
+    name: &'static str,
+) -> Result<Listener<Ipc>, TransportError> {
+    factory
+        .listener_builder()
+        .create()
+        .map_err(|e| TransportError::ipc(name, e))
+}
+
+fn notifier(
+    factory: &EventFactory<Ipc>,
+    name: &'static str,
+) -> Result<Notifier<Ipc>, TransportError> {
+    factory
+        .notifier_builder()
+        .create()
+        .map_err(|e| TransportError::ipc(name, e))
+}
+
+/// Every service of a domain, opened by one node with the settings both sides share.
+#[derive(Debug)]
+struct Services {
+    /// Held, never used: while it lives, this process is alive in the domain.
+    _node: Node<Ipc>,
+    cleaned_dead_nodes: u64,
+    top: PubSubFactory<Ipc, TopFrame, ()>,
+    bottom: PubSubFactory<Ipc, BottomFrame, ()>,
+    ticks: PubSubFactory<Ipc, LockStepTick, ()>,
+    commands: PubSubFactory<Ipc, MotionCommand, ()>,
+    tick_events: EventFactory<Ipc>,
+    command_events: EventFactory<Ipc>,
+}
+
+impl Services {
+    fn open(domain: &Domain, node_name: &str) -> Result<Self, TransportError> {
+        let (node, cleaned_dead_nodes) = domain.create_node(node_name)?;
+        Ok(Self {
+            top: open_pubsub(&node, TOP_CAMERA_SERVICE, &FRAME_QOS)?,
+            bottom: open_pubsub(&node, BOTTOM_CAMERA_SERVICE, &FRAME_QOS)?,
+            ticks: open_pubsub(&node, TICK_SERVICE, &TICK_QOS)?,
+            commands: open_pubsub(&node, COMMAND_SERVICE, &COMMAND_QOS)?,
+            tick_events: open_event(&node, TICK_SERVICE)?,
+            command_events: open_event(&node, COMMAND_SERVICE)?,
+            _node: node,
+            cleaned_dead_nodes,
+        })
+    }
+}
+
+/// Sends a copy of `value` and wakes the listeners of its event service.
+fn send_and_signal<T: core::fmt::Debug + Copy + ZeroCopySend>(
+    publisher: &Publisher<Ipc, T, ()>,
+    notifier: &Notifier<Ipc>,
+    value: T,
+    what: &'static str,
+) -> Result<(), TransportError> {
+    publisher
+        .send_copy(value)
+        .map_err(|e| TransportError::ipc(what, e))?;
+    notifier
+        .notify()
+        .map_err(|e| TransportError::ipc(what, e))?;
+    Ok(())
+}
+
+/// The next message in order, copied out, if one is waiting.
+fn next_message<T: core::fmt::Debug + Copy + ZeroCopySend>(
+    subscriber: &Subscriber<Ipc, T, ()>,
+) -> Result<Option<T>, TransportError> {
+    match subscriber.receive() {
+        Ok(sample) => Ok(sample.map(|s| *s)),
+        Err(e) => Err(TransportError::ipc("receive failed", e)),
+    }
 }
 
 /// Sleeps until the other side signals, at most `timeout`. A signal (SIGINT, SIGTERM)
@@ -311,7 +381,8 @@ fn newest<T: core::fmt::Debug + ZeroCopySend>(
 /// commands.
 #[derive(Debug)]
 pub struct Iceoryx2ControllerPorts {
-    node: Node<Ipc>,
+    /// Held, never used: while it lives, the controller is alive in the domain.
+    _node: Node<Ipc>,
     top: Subscriber<Ipc, TopFrame, ()>,
     bottom: Subscriber<Ipc, BottomFrame, ()>,
     ticks: Subscriber<Ipc, LockStepTick, ()>,
@@ -323,45 +394,29 @@ pub struct Iceoryx2ControllerPorts {
 
 impl Iceoryx2ControllerPorts {
     pub fn open(domain: &Domain) -> Result<Self, TransportError> {
-        let (node, cleaned_dead_nodes) = domain.create_node(CONTROLLER_NODE)?;
-        let top = open_pubsub::<TopFrame>(&node, TOP_CAMERA_SERVICE, &FRAME_QOS)?;
-        let bottom = open_pubsub::<BottomFrame>(&node, BOTTOM_CAMERA_SERVICE, &FRAME_QOS)?;
-        let ticks = open_pubsub::<LockStepTick>(&node, TICK_SERVICE, &TICK_QOS)?;
-        let commands = open_pubsub::<MotionCommand>(&node, COMMAND_SERVICE, &COMMAND_QOS)?;
-        let commands = publisher(&commands, COMMAND_SERVICE).map_err(|e| match e {
+        let services = Services::open(domain, CONTROLLER_NODE)?;
+        let commands = publisher(&services.commands, COMMAND_SERVICE).map_err(|e| match e {
             TransportError::Ipc { detail, .. } => TransportError::Ipc {
                 what: "cannot publish commands (is another controller running in this domain?)",
                 detail,
             },
             other => other,
         })?;
-        let tick_events = open_event(&node, TICK_SERVICE)?
-            .listener_builder()
-            .create()
-            .map_err(|e| TransportError::ipc(TICK_SERVICE, e))?;
-        let command_events = open_event(&node, COMMAND_SERVICE)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| TransportError::ipc(COMMAND_SERVICE, e))?;
         Ok(Self {
-            top: subscriber(&top, TOP_CAMERA_SERVICE)?,
-            bottom: subscriber(&bottom, BOTTOM_CAMERA_SERVICE)?,
-            ticks: subscriber(&ticks, TICK_SERVICE)?,
-            tick_events,
+            top: subscriber(&services.top, TOP_CAMERA_SERVICE)?,
+            bottom: subscriber(&services.bottom, BOTTOM_CAMERA_SERVICE)?,
+            ticks: subscriber(&services.ticks, TICK_SERVICE)?,
+            tick_events: listener(&services.tick_events, TICK_SERVICE)?,
             commands,
-            command_events,
-            node,
-            cleaned_dead_nodes,
+            command_events: notifier(&services.command_events, COMMAND_SERVICE)?,
+            _node: services._node,
+            cleaned_dead_nodes: services.cleaned_dead_nodes,
         })
     }
 
     /// How many dead nodes (killed processes) this start cleaned up after.
     pub fn cleaned_dead_nodes(&self) -> u64 {
         self.cleaned_dead_nodes
-    }
-
-    pub fn node(&self) -> &Node<Ipc> {
-        &self.node
     }
 }
 
@@ -378,116 +433,61 @@ impl ControllerPorts for Iceoryx2ControllerPorts {
     }
 
     fn publish(&mut self, command: &MotionCommand) -> Result<(), TransportError> {
-        self.commands
-            .send_copy(*command)
-            .map_err(|e| TransportError::ipc("cannot publish a command", e))?;
-        self.command_events
-            .notify()
-            .map_err(|e| TransportError::ipc("cannot signal a command", e))?;
-        Ok(())
+        send_and_signal(
+            &self.commands,
+            &self.command_events,
+            *command,
+            "cannot publish a command",
+        )
     }
 
     fn next_tick(&mut self, timeout: Duration) -> Result<Option<LockStepTick>, TransportError> {
-        if let Some(tick) = self.receive_tick()? {
+        if let Some(tick) = next_message(&self.ticks)? {
             return Ok(Some(tick));
         }
         wait_for_event(&self.tick_events, timeout, "waiting for a tick failed")?;
-        self.receive_tick()
-    }
-}
-
-impl Iceoryx2ControllerPorts {
-    fn receive_tick(&mut self) -> Result<Option<LockStepTick>, TransportError> {
-        match self.ticks.receive() {
-            Ok(sample) => Ok(sample.map(|s| *s)),
-            Err(e) => Err(TransportError::ipc("receive failed", e)),
-        }
+        next_message(&self.ticks)
     }
 }
 
 /// The simulator's (or camera driver's and motion module's) side over iceoryx2.
 #[derive(Debug)]
 pub struct Iceoryx2SimulatorPorts {
-    node: Node<Ipc>,
-    top_service: PubSubFactory<Ipc, TopFrame, ()>,
-    tick_service: PubSubFactory<Ipc, LockStepTick, ()>,
-    command_service: PubSubFactory<Ipc, MotionCommand, ()>,
+    services: Services,
     top: Publisher<Ipc, TopFrame, ()>,
     bottom: Publisher<Ipc, BottomFrame, ()>,
     ticks: Publisher<Ipc, LockStepTick, ()>,
     tick_events: Notifier<Ipc>,
     commands: Subscriber<Ipc, MotionCommand, ()>,
     command_events: Listener<Ipc>,
-    cleaned_dead_nodes: u64,
 }
 
 impl Iceoryx2SimulatorPorts {
     pub fn open(domain: &Domain, node_name: &str) -> Result<Self, TransportError> {
-        let (node, cleaned_dead_nodes) = domain.create_node(node_name)?;
-        let top_service = open_pubsub::<TopFrame>(&node, TOP_CAMERA_SERVICE, &FRAME_QOS)?;
-        let bottom = open_pubsub::<BottomFrame>(&node, BOTTOM_CAMERA_SERVICE, &FRAME_QOS)?;
-        let tick_service = open_pubsub::<LockStepTick>(&node, TICK_SERVICE, &TICK_QOS)?;
-        let command_service = open_pubsub::<MotionCommand>(&node, COMMAND_SERVICE, &COMMAND_QOS)?;
-        let tick_events = open_event(&node, TICK_SERVICE)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| TransportError::ipc(TICK_SERVICE, e))?;
-        let command_events = open_event(&node, COMMAND_SERVICE)?
-            .listener_builder()
-            .create()
-            .map_err(|e| TransportError::ipc(COMMAND_SERVICE, e))?;
+        let services = Services::open(domain, node_name)?;
         Ok(Self {
-            top: publisher(&top_service, TOP_CAMERA_SERVICE)?,
-            bottom: publisher(&bottom, BOTTOM_CAMERA_SERVICE)?,
-            ticks: publisher(&tick_service, TICK_SERVICE)?,
-            commands: subscriber(&command_service, COMMAND_SERVICE)?,
-            top_service,
-            tick_service,
-            command_service,
-            tick_events,
-            command_events,
-            node,
-            cleaned_dead_nodes,
+            top: publisher(&services.top, TOP_CAMERA_SERVICE)?,
+            bottom: publisher(&services.bottom, BOTTOM_CAMERA_SERVICE)?,
+            ticks: publisher(&services.ticks, TICK_SERVICE)?,
+            tick_events: notifier(&services.tick_events, TICK_SERVICE)?,
+            commands: subscriber(&services.commands, COMMAND_SERVICE)?,
+            command_events: listener(&services.command_events, COMMAND_SERVICE)?,
+            services,
         })
     }
 
+    /// How many dead nodes (killed processes) opening these ports cleaned up after.
     pub fn cleaned_dead_nodes(&self) -> u64 {
-        self.cleaned_dead_nodes
-    }
-
-    pub fn node(&self) -> &Node<Ipc> {
-        &self.node
+        self.services.cleaned_dead_nodes
     }
 
     /// Whether a controller has opened its ports: it subscribes to the cameras and ticks and
     /// publishes commands. Samples sent before that are lost, so a lock-step simulator waits.
     pub fn controller_connected(&self) -> bool {
-        self.command_service.dynamic_config().number_of_publishers() > 0
-            && self.tick_service.dynamic_config().number_of_subscribers() > 0
-            && self.top_service.dynamic_config().number_of_subscribers() > 0
-    }
-
-    fn receive_answer(
-        &mut self,
-        tick: &LockStepTick,
-    ) -> Result<Option<MotionCommand>, TransportError> {
-        loop {
-            match self.commands.receive() {
-                Ok(Some(command)) if command.timestamp_ns == tick.time_ns => {
-                    return Ok(Some(*command));
-                }
-                Ok(Some(_)) => {} // a stop from a silent spell: it answers nothing
-                Ok(None) => return Ok(None),
-                Err(e) => return Err(TransportError::ipc("receive failed", e)),
-            }
-        }
-    }
-
-    fn receive_command(&mut self) -> Result<Option<MotionCommand>, TransportError> {
-        match self.commands.receive() {
-            Ok(sample) => Ok(sample.map(|s| *s)),
-            Err(e) => Err(TransportError::ipc("receive failed", e)),
-        }
+        let services = &self.services;
+        services.commands.dynamic_config().number_of_publishers() > 0
+            && services.ticks.dynamic_config().number_of_subscribers() > 0
+            && services.top.dynamic_config().number_of_subscribers() > 0
     }
 }
 
@@ -509,33 +509,16 @@ impl SimulatorPorts for Iceoryx2SimulatorPorts {
     }
 
     fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError> {
-        self.ticks
-            .send_copy(*tick)
-            .map_err(|e| TransportError::ipc("cannot publish a tick", e))?;
-        self.tick_events
-            .notify()
-            .map_err(|e| TransportError::ipc("cannot signal a tick", e))?;
-        Ok(())
-    }
-
-    fn answer(
-        &mut self,
-        tick: &LockStepTick,
-        timeout: Duration,
-    ) -> Result<Option<MotionCommand>, TransportError> {
-        if let Some(command) = self.receive_answer(tick)? {
-            return Ok(Some(command));
-        }
-        wait_for_event(
-            &self.command_events,
-            timeout,
-            "waiting for a command failed",
-        )?;
-        self.receive_answer(tick)
+        send_and_signal(
+            &self.ticks,
+            &self.tick_events,
+            *tick,
+            "cannot publish a tick",
+        )
     }
 
     fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
-        if let Some(command) = self.receive_command()? {
+        if let Some(command) = next_message(&self.commands)? {
             return Ok(Some(command));
         }
         wait_for_event(
@@ -543,7 +526,7 @@ impl SimulatorPorts for Iceoryx2SimulatorPorts {
             timeout,
             "waiting for a command failed",
         )?;
-        self.receive_command()
+        next_message(&self.commands)
     }
 }
 
@@ -551,7 +534,8 @@ impl SimulatorPorts for Iceoryx2SimulatorPorts {
 /// module's input.
 #[derive(Debug)]
 pub struct CommandMonitor {
-    node: Node<Ipc>,
+    /// Held, never used: while it lives, the monitor is alive in the domain.
+    _node: Node<Ipc>,
     commands: Subscriber<Ipc, MotionCommand, ()>,
 }
 
@@ -561,20 +545,13 @@ impl CommandMonitor {
         let service = open_pubsub::<MotionCommand>(&node, COMMAND_SERVICE, &COMMAND_QOS)?;
         Ok(Self {
             commands: subscriber(&service, COMMAND_SERVICE)?,
-            node,
+            _node: node,
         })
     }
 
     /// The next command in order, if one is waiting.
     pub fn try_next(&mut self) -> Result<Option<MotionCommand>, TransportError> {
-        match self.commands.receive() {
-            Ok(sample) => Ok(sample.map(|s| *s)),
-            Err(e) => Err(TransportError::ipc("receive failed", e)),
-        }
-    }
-
-    pub fn node(&self) -> &Node<Ipc> {
-        &self.node
+        next_message(&self.commands)
     }
 }
 

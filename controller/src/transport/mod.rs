@@ -78,14 +78,25 @@ pub trait SimulatorPorts {
     /// Publishes a lock-step tick and wakes the controller.
     fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError>;
 
-    /// The command answering `tick` (the one stamped with the tick's time), waiting at most
-    /// `timeout` for it.
+    /// The next command in order, whatever it answers, waiting at most `timeout` for it.
+    fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError>;
+
+    /// The command answering `tick`, waiting at most `timeout` for it. The answer is the
+    /// command stamped with the tick's time; any other (a stop from a silent spell) answers
+    /// nothing and is passed over.
     fn answer(
         &mut self,
         tick: &LockStepTick,
         timeout: Duration,
-    ) -> Result<Option<MotionCommand>, TransportError>;
-
-    /// The next command in order, whatever it answers, waiting at most `timeout` for it.
-    fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError>;
+    ) -> Result<Option<MotionCommand>, TransportError> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match self.next_command(left)? {
+                Some(command) if command.timestamp_ns == tick.time_ns => return Ok(Some(command)),
+                Some(_) => {}
+                None => return Ok(None),
+            }
+        }
+    }
 }

@@ -71,10 +71,6 @@ impl<P: Policy, C: Clock, T: ControllerPorts> ControllerNode<P, C, T> {
         &mut self.control
     }
 
-    pub fn ports(&self) -> &T {
-        &self.ports
-    }
-
     pub fn ports_mut(&mut self) -> &mut T {
         &mut self.ports
     }
