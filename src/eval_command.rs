@@ -103,7 +103,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let policy_path = (args.driver != "expert").then(|| PathBuf::from(&args.driver));
     match &policy_path {
         None => {
-            println!("driver: the scripted expert (ground truth; no trained policy is shipped yet)")
+            println!("driver: the scripted expert (ground truth)")
         }
         Some(path) => {
             let manifest = PolicyManifest::load(path)?;
@@ -285,15 +285,17 @@ fn open_session(
             command
                 .arg("--rate-hz")
                 .arg((1.0 / config.control.tick_period.as_secs_f64()).to_string())
-                .args(["run", "--clock", "simulation", "--domain", domain.name()])
+                .args(["run", "--clock", "simulation"])
                 .arg("--policy")
                 .arg(policy)
                 .stdin(Stdio::null())
                 .stdout(log.try_clone()?)
                 .stderr(log);
-            if args.domain.is_none() && std::env::var_os(Domain::ENV).is_none() {
-                command.env_remove(Domain::ENV);
-            }
+            // The child joins exactly this domain: named, or iceoryx2's default one.
+            match domain.name() {
+                Some(name) => command.args(["--domain", name]),
+                None => command.env_remove(Domain::ENV),
+            };
             let link = Iceoryx2Link::connect(&domain, Some(&mut command), timeouts)
                 .with_context(|| format!("controller {}", binary.display()))?;
             if link.owns_controller() {
@@ -301,13 +303,13 @@ fn open_session(
                     "controller: started {} (pid {}, domain {}, log {})",
                     binary.display(),
                     link.controller_pid().unwrap_or(-1),
-                    domain.name(),
+                    domain.label(),
                     args.controller_log.display()
                 );
             } else {
                 println!(
                     "controller: using the one already running in domain {} (pid {}); its policy is its own",
-                    domain.name(),
+                    domain.label(),
                     link.controller_pid().unwrap_or(-1)
                 );
             }
@@ -315,7 +317,7 @@ fn open_session(
                 println!(
                     "iceoryx2: cleaned up after {} dead process(es) in domain {}",
                     link.cleaned_dead_nodes(),
-                    domain.name()
+                    domain.label()
                 );
             }
             Ok(Session::Process(Box::new(link)))

@@ -1,15 +1,23 @@
 //! `dribble inspect`: is a recorded dataset sane? Counts, outcomes, the distribution of the
-//! expert's commands and phases, and a contact sheet of what the policy will see.
+//! expert's commands and phases, a contact sheet of what the policy will see, and how often
+//! the ball and the target goal are inside the cameras' images in each phase (the
+//! measurement that sets the head pitch; `--head-pitch-sweep` repeats it for other pitches
+//! on the same recorded paths, which the expert walks the same whatever the cameras see).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail, ensure};
 use clap::Args;
+use dribble_sim::camera_geometry::CameraGeometry;
 use dribble_sim::dataset::{DatasetIndex, NpyArray, read_npz};
+use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::expert::Phase;
+use dribble_sim::field::FieldGeometry;
 use dribble_sim::image_output::RgbImage;
+use dribble_sim::pose::FieldPose;
 use dribble_sim::text::line_height;
+use dribble_sim::visibility::{Visibility, VisibilityShares};
 
 #[derive(Debug, Args)]
 pub struct InspectArgs {
@@ -21,7 +29,18 @@ pub struct InspectArgs {
     /// Where to write the contact sheet of sample thumbnails.
     #[arg(long, default_value = "dataset_thumbnails.png")]
     thumbnails: PathBuf,
+    /// Measure visibility with this head pitch (degrees, positive down) instead of the one the
+    /// dataset was recorded with.
+    #[arg(long, allow_hyphen_values = true)]
+    head_pitch: Option<f32>,
+    /// Also measure visibility over the Nao's HeadPitch range on the recorded paths, to choose
+    /// the pitch for `sim-harness/config/nao_cameras.toml`.
+    #[arg(long)]
+    head_pitch_sweep: bool,
 }
+
+/// Head pitches the sweep measures, degrees (the Nao's range is -38.5..29.5).
+const SWEEP_DEG: [f32; 10] = [-10.0, -5.0, 0.0, 5.0, 10.0, 15.0, 18.0, 21.0, 25.0, 29.5];
 
 const BINS: usize = 20;
 const BACKGROUND: [u8; 3] = [250, 250, 250];
@@ -53,6 +72,17 @@ pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
     let total_rows: usize = index.episodes.iter().map(|e| e.rows).sum();
     let every = (total_rows / 16).max(1);
     let mut samples = Vec::new();
+    let recorded_pitch = recorded_head_pitch(&index);
+    let pitch = args.head_pitch.unwrap_or(recorded_pitch);
+    let mut pitches = vec![pitch];
+    if args.head_pitch_sweep {
+        pitches.extend(SWEEP_DEG.iter().filter(|&&p| p != pitch));
+    }
+    let geometries = pitches
+        .iter()
+        .map(|&p| CameraGeometry::nao().with_head_pitch(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut visibility = vec![[VisibilityShares::default(); 4]; pitches.len()];
     for entry in &index.episodes {
         *outcomes.entry(entry.outcome.name()).or_default() += 1;
         let arrays = read_npz(&args.dataset.join(&entry.file))?;
@@ -64,6 +94,25 @@ pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
         check_shapes(&arrays, entry.rows, &entry.file)?;
         let command = array("command")?.as_f32();
         let phase = &array("phase")?.data;
+        let poses = array("robot_pose")?.as_f32();
+        let balls = array("ball")?.as_f32();
+        let target_side = EpisodeSetup::from_seed(entry.seed).target_side;
+        for (row, (pose, ball)) in poses.chunks_exact(3).zip(balls.chunks_exact(2)).enumerate() {
+            let p = usize::from(phase[row]);
+            if p >= Phase::ALL.len() {
+                continue;
+            };
+            let robot = FieldPose::new(pose[0], pose[1], pose[2]);
+            for (geometry, shares) in geometries.iter().zip(&mut visibility) {
+                shares[p].add(Visibility::of(
+                    geometry,
+                    &FieldGeometry::SPL,
+                    robot,
+                    glam::Vec2::new(ball[0], ball[1]),
+                    target_side,
+                ));
+            }
+        }
         for (i, c) in command.chunks_exact(3).enumerate() {
             for (histogram, value) in histograms.iter_mut().zip(c) {
                 let bin = (((value + 1.0) / 2.0 * BINS as f32) as usize).min(BINS - 1);
@@ -103,11 +152,94 @@ pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
         .map(|(p, n)| format!("{} {:.1}%", p.name(), 100.0 * n as f64 / rows.max(1) as f64))
         .collect();
     println!("phases: {}", phase_list.join(", "));
+    print_visibility(pitch, recorded_pitch, &visibility[0]);
+    if args.head_pitch_sweep {
+        print_sweep(&pitches, &visibility);
+    }
     draw_histograms(&histograms, &phases, &args.histograms)?;
     println!("histograms: {}", args.histograms.display());
     draw_contact_sheet(&samples, &args.thumbnails)?;
     println!("thumbnails: {}", args.thumbnails.display());
     Ok(())
+}
+
+/// The head pitch the dataset was recorded with; 0 for datasets from before the head could
+/// pitch (their camera record is not structured).
+fn recorded_head_pitch(index: &DatasetIndex) -> f32 {
+    index.simulator["cameras"]["head"]["pitch_deg"]
+        .as_f64()
+        .map_or(0.0, |p| p as f32)
+}
+
+/// Per phase: rows with the ball inside the top, the bottom, either image, and with a post of
+/// the target goal inside the top image.
+fn print_visibility(pitch: f32, recorded: f32, shares: &[VisibilityShares; 4]) {
+    let source = if pitch == recorded {
+        "as recorded"
+    } else {
+        "not as recorded: geometry on the recorded paths"
+    };
+    println!("visibility, head pitch {pitch:.1} deg ({source}):");
+    println!(
+        "  {:<10} {:>7} {:>10} {:>13} {:>13} {:>16}",
+        "phase", "rows", "ball top", "ball bottom", "ball either", "target post top"
+    );
+    let mut all = VisibilityShares::default();
+    for (phase, s) in Phase::ALL.iter().zip(shares) {
+        all.merge(s);
+        print_visibility_row(phase.name(), s);
+    }
+    print_visibility_row("all", &all);
+}
+
+fn print_visibility_row(name: &str, s: &VisibilityShares) {
+    println!(
+        "  {:<10} {:>7} {:>9.1}% {:>12.1}% {:>12.1}% {:>15.1}%",
+        name,
+        s.rows,
+        s.percent(s.ball_in_top),
+        s.percent(s.ball_in_bottom),
+        s.percent(s.ball_in_either),
+        s.percent(s.target_post_in_top)
+    );
+}
+
+/// One line per pitch: the ball in either image over approach, align and dribble rows (the
+/// aim is at least 95 %), per phase, and the target goal in the top image.
+fn print_sweep(pitches: &[f32], visibility: &[[VisibilityShares; 4]]) {
+    println!("head pitch sweep (geometry on the recorded paths):");
+    println!(
+        "  {:>6} {:>22} {:>9} {:>7} {:>8} {:>17} {:>16}",
+        "pitch",
+        "ball either app+al+dr",
+        "approach",
+        "align",
+        "dribble",
+        "post top (all)",
+        "post top (al+dr)"
+    );
+    let mut order: Vec<usize> = (0..pitches.len()).collect();
+    order.sort_by(|&a, &b| pitches[a].total_cmp(&pitches[b]));
+    for i in order {
+        let [search, approach, align, dribble] = visibility[i];
+        let mut moving = approach;
+        moving.merge(&align);
+        moving.merge(&dribble);
+        let mut all = moving;
+        all.merge(&search);
+        let mut near = align;
+        near.merge(&dribble);
+        println!(
+            "  {:>6.1} {:>21.1}% {:>8.1}% {:>6.1}% {:>7.1}% {:>16.1}% {:>15.1}%",
+            pitches[i],
+            moving.percent(moving.ball_in_either),
+            approach.percent(approach.ball_in_either),
+            align.percent(align.ball_in_either),
+            dribble.percent(dribble.ball_in_either),
+            all.percent(all.target_post_in_top),
+            near.percent(near.target_post_in_top)
+        );
+    }
 }
 
 fn check_shapes(

@@ -6,6 +6,7 @@ mod eval_command;
 mod inspect_command;
 mod record_command;
 mod render_command;
+mod score_command;
 mod thumbnail_command;
 mod trajectory_plot;
 
@@ -38,6 +39,10 @@ enum Command {
     /// Checks a recorded dataset and summarises it: counts, outcomes, phases, a histogram
     /// picture of the commands and phases, and a contact sheet of sample thumbnails.
     Inspect(inspect_command::InspectArgs),
+    /// Replays a recorded dataset through a learned policy as the controller runs it (the
+    /// R-CNN stepped from a zero state per episode, the H-CNN gated in Rust) and prints the
+    /// paper's error, overall and per expert phase.
+    Score(score_command::ScoreArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -47,5 +52,6 @@ fn main() -> anyhow::Result<()> {
         Command::Eval(args) => eval_command::run(&args),
         Command::Record(args) => record_command::run(&args),
         Command::Inspect(args) => inspect_command::run(&args),
+        Command::Score(args) => score_command::run(&args),
     }
 }

@@ -5,7 +5,7 @@ use std::fs;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::Context;
+use anyhow::{Context, ensure};
 use clap::Args;
 use dribble_sim::dataset::{DatasetIndex, EpisodeEntry, EpisodeRecording, episode_file};
 use dribble_sim::episode::EpisodeSetup;
@@ -38,19 +38,36 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         ..EpisodeConfig::default()
     };
     let expert_config = ExpertConfig::default();
-    let mut index = DatasetIndex::load(&args.out)?.unwrap_or_else(|| DatasetIndex {
-        format: 1,
-        project_version: env!("CARGO_PKG_VERSION").into(),
-        simulator: serde_json::json!({
-            "world": format!("{:?}", config.world),
-            "walk": format!("{:?}", config.walk),
-            "cameras": format!("{:?}", config.cameras),
-            "control": format!("{:?}", config.control),
-            "time_limit_s": config.time_limit_s,
-        }),
-        expert: serde_json::json!(format!("{expert_config:?}")),
-        episodes: Vec::new(),
+    let simulator = serde_json::json!({
+        "world": format!("{:?}", config.world),
+        "walk": format!("{:?}", config.walk),
+        "cameras": serde_json::to_value(config.cameras)?,
+        "control": format!("{:?}", config.control),
+        "time_limit_s": config.time_limit_s,
     });
+    let expert = serde_json::json!(format!("{expert_config:?}"));
+    let mut index = match DatasetIndex::load(&args.out)? {
+        Some(index) => {
+            // Resuming: the new episodes must come from the same simulator and expert.
+            ensure!(
+                index.simulator == simulator && index.expert == expert,
+                "{} was recorded with another simulator, camera or expert configuration \
+                 (recorded: {}; now: {}); record into a new directory",
+                args.out.display(),
+                index.simulator,
+                simulator
+            );
+            index
+        }
+        None => DatasetIndex {
+            format: 1,
+            project_version: env!("CARGO_PKG_VERSION").into(),
+            simulator,
+            expert,
+            episodes: Vec::new(),
+            content_hash: None,
+        },
+    };
     let done = |seed: u64| {
         index
             .episodes
@@ -95,7 +112,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         )
         .with_context(|| format!("episode {seed}"))?;
         let file = episode_file(seed);
-        let bytes = recording.write(&args.out.join(&file))?;
+        let (bytes, sha256) = recording.write(&args.out.join(&file))?;
         index.insert(EpisodeEntry {
             seed,
             file,
@@ -103,6 +120,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             rows: recording.rows(),
             duration_s: f64::from(result.duration_s),
             bytes,
+            sha256: Some(sha256),
         });
         index.save(&args.out)?;
         simulated += f64::from(result.duration_s);
@@ -135,12 +153,17 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         .iter()
         .filter(|e| e.outcome == dribble_sim::dataset::Outcome::Goal)
         .count();
+    index.save(&args.out)?;
     println!(
-        "{}: {} episodes, {} goals, {} rows",
+        "{}: {} episodes, {} goals, {} rows, content hash {}",
         args.out.join(DatasetIndex::FILE).display(),
         index.episodes.len(),
         goals,
-        index.episodes.iter().map(|e| e.rows).sum::<usize>()
+        index.episodes.iter().map(|e| e.rows).sum::<usize>(),
+        index
+            .compute_content_hash()
+            .as_deref()
+            .unwrap_or("(incomplete)")
     );
     Ok(())
 }

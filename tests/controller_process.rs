@@ -432,3 +432,34 @@ fn eval_reports_a_lost_controller_and_starts_a_new_one() {
     let log = std::fs::read_to_string(dir.join("controller.log")).expect("log");
     assert_eq!(log.matches("event=ready").count(), 2, "{log}");
 }
+
+/// The README's evaluation example exactly as a new user types it: no `--domain`, no
+/// `DRIBBLE_DOMAIN`, so the simulator and the controller it starts must meet in iceoryx2's
+/// default domain.
+#[test]
+fn the_readme_eval_example_runs_in_the_default_domain() {
+    let _serial = one_at_a_time();
+    let dir = scratch("readme-eval");
+    let repository = Path::new(env!("CARGO_MANIFEST_DIR"));
+    std::os::unix::fs::symlink(repository.join("models"), dir.join("models")).expect("link");
+    // cargo builds the tool's binaries side by side; eval finds the controller beside itself.
+    let _ = controller_binary();
+    let output = Command::new(env!("CARGO_BIN_EXE_dribble"))
+        .args([
+            "eval",
+            "--driver",
+            "models/fixtures/cnn/policy.toml",
+            "--episodes",
+            "10000..10002",
+        ])
+        .current_dir(&dir)
+        .env_remove(Domain::ENV)
+        .output()
+        .expect("dribble runs");
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    assert!(said.contains("controller: started"), "{said}");
+    assert!(said.contains("domain default"), "{said}");
+    let log = std::fs::read_to_string(dir.join("controller.log")).expect("controller.log");
+    assert!(log.contains("event=ready domain=default"), "{log}");
+}

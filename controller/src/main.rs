@@ -137,14 +137,14 @@ fn run(
     let ports = Iceoryx2ControllerPorts::open(domain).with_context(|| {
         format!(
             "cannot open the iceoryx2 services of domain {}",
-            domain.name()
+            domain.label()
         )
     })?;
     log(
         Level::Info,
         "ready",
         &[
-            ("domain", &domain.name()),
+            ("domain", &domain.label()),
             ("clock", &format!("{clock:?}").to_lowercase()),
             ("rate_hz", &(1.0 / config.tick_period.as_secs_f64())),
             ("pid", &std::process::id()),

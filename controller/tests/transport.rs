@@ -230,6 +230,11 @@ fn a_second_controller_in_a_domain_is_refused() {
 #[test]
 fn domain_names_are_checked() {
     assert!(Domain::new(Some("robot-3_field_A")).is_ok());
+    // The default domain is printed as "default"; that name, passed back, means it.
+    let default = Domain::new(Some(Domain::DEFAULT_LABEL)).expect("the default domain");
+    assert_eq!(default.name(), None);
+    assert_eq!(default.label(), "default");
+    assert_eq!(Domain::new(None).expect("default").name(), None);
     for bad in ["", "a/b", "has space", &"x".repeat(33)] {
         assert!(Domain::new(Some(bad)).is_err(), "{bad:?}");
     }

@@ -14,12 +14,23 @@ FORMAT = 1
 
 @dataclass
 class TrainingRecord:
-    """Where the weights came from."""
+    """Where the weights came from. The hashes are datasets' content hashes
+    (`dataset.json`), so `dribble score --expect train|test` can tell whether a dataset is
+    the one named here."""
 
     dataset: str
     epochs: int
+    dataset_hash: str | None = None
+    test_dataset_hash: str | None = None
+    best_epoch: int | None = None
+    seed: int | None = None
+    validation_seeds: list[int] | None = None
+    wall_time_s: float | None = None
+    torch_version: str | None = None
     train_error: float | None = None
+    validation_error: float | None = None
     test_error: float | None = None
+    notes: str | None = None
 
 
 @dataclass
@@ -78,8 +89,17 @@ class Manifest:
                 f"centroids = [\n{rows},\n]",
             ]
         lines += ["", "[training]", f"dataset = {_string(self.training.dataset)}", f"epochs = {self.training.epochs}"]
-        for key in ("train_error", "test_error"):
-            value = getattr(self.training, key)
+        t = self.training
+        for key in ("dataset_hash", "test_dataset_hash", "torch_version", "notes"):
+            if getattr(t, key) is not None:
+                lines.append(f"{key} = {_string(getattr(t, key))}")
+        for key in ("best_epoch", "seed"):
+            if getattr(t, key) is not None:
+                lines.append(f"{key} = {int(getattr(t, key))}")
+        if t.validation_seeds is not None:
+            lines.append(f"validation_seeds = [{', '.join(str(int(s)) for s in t.validation_seeds)}]")
+        for key in ("wall_time_s", "train_error", "validation_error", "test_error"):
+            value = getattr(t, key)
             if value is not None:
                 lines.append(f"{key} = {_float(value)}")
         return "\n".join(lines) + "\n"

@@ -1,15 +1,20 @@
 //! Where the Nao's cameras sit and what they see: read from `config/nao_cameras.toml`, the one
 //! place those numbers live.
+//!
+//! The file gives each camera's mounting with the head straight, and one fixed HeadPitch
+//! for the whole run. The pitch turns both cameras about the head's pitch axis, as the
+//! Nao's joint does, so a pitched head moves the cameras as well as tilting them. Nothing
+//! reads ground truth to set it: it is configuration, the same for every episode.
 
 use std::path::Path;
 
 use dribble_controller::CameraPosition;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 const NAO_CAMERAS: &str = include_str!("../config/nao_cameras.toml");
 
 /// One camera's mounting and intrinsics.
-#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraMount {
     pub width: u32,
@@ -36,13 +41,59 @@ impl CameraMount {
     }
 }
 
-/// Both cameras and their timing.
+/// The Nao's HeadPitch joint range, degrees (positive looks down).
+pub const HEAD_PITCH_RANGE_DEG: core::ops::RangeInclusive<f32> = -38.5..=29.5;
+
+/// The head's pitch joint: where its axis lies and how far it is turned.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeadPitch {
+    /// HeadPitch, degrees, positive down; within [`HEAD_PITCH_RANGE_DEG`].
+    pub pitch_deg: f32,
+    /// The pitch axis ahead of the point between the feet, metres.
+    pub joint_forward_m: f32,
+    /// The pitch axis above the ground, metres.
+    pub joint_height_m: f32,
+}
+
+impl HeadPitch {
+    /// `mount` (given with the head straight) after the head turns by `pitch_deg`: the
+    /// camera's offset from the joint turns with it and its axis tilts by the same angle.
+    fn apply(&self, mount: &CameraMount) -> CameraMount {
+        let (sin, cos) = self.pitch_deg.to_radians().sin_cos();
+        let dx = mount.forward_m - self.joint_forward_m;
+        let dz = mount.height_m - self.joint_height_m;
+        CameraMount {
+            forward_m: self.joint_forward_m + dx * cos + dz * sin,
+            height_m: self.joint_height_m - dx * sin + dz * cos,
+            pitch_down_deg: mount.pitch_down_deg + self.pitch_deg,
+            ..*mount
+        }
+    }
+}
+
+/// `nao_cameras.toml` as written: the mounts with the head straight, and the head.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
+struct CameraFile {
+    frame_rate_hz: f32,
+    head: HeadPitch,
+    top: CameraMount,
+    bottom: CameraMount,
+}
+
+/// Both cameras and their timing.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct CameraGeometry {
     pub frame_rate_hz: f32,
+    pub head: HeadPitch,
+    /// The top camera with the head pitched by `head.pitch_deg`.
     pub top: CameraMount,
+    /// The bottom camera with the head pitched by `head.pitch_deg`.
     pub bottom: CameraMount,
+    /// Both mounts with the head straight, as the file gives them.
+    #[serde(skip)]
+    straight: [CameraMount; 2],
 }
 
 /// The camera configuration could not be used.
@@ -77,10 +128,10 @@ impl CameraGeometry {
             path: path.to_owned(),
             message,
         };
-        let geometry: Self = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
+        let file: CameraFile = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
         for (name, mount, size) in [
-            ("top", geometry.top, (640, 480)),
-            ("bottom", geometry.bottom, (320, 240)),
+            ("top", file.top, (640, 480)),
+            ("bottom", file.bottom, (320, 240)),
         ] {
             if (mount.width, mount.height) != size {
                 return Err(invalid(format!(
@@ -97,10 +148,46 @@ impl CameraGeometry {
                 )));
             }
         }
-        if geometry.frame_rate_hz.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        if file.frame_rate_hz.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return Err(invalid("frame_rate_hz must be positive".into()));
         }
-        Ok(geometry)
+        let straight = Self {
+            frame_rate_hz: file.frame_rate_hz,
+            head: HeadPitch {
+                pitch_deg: 0.0,
+                ..file.head
+            },
+            top: file.top,
+            bottom: file.bottom,
+            straight: [file.top, file.bottom],
+        };
+        straight
+            .with_head_pitch(file.head.pitch_deg)
+            .map_err(|e| invalid(e.to_string()))
+    }
+
+    /// The same cameras with the head pitched by `pitch_deg` instead.
+    pub fn with_head_pitch(&self, pitch_deg: f32) -> Result<Self, CameraGeometryError> {
+        if !HEAD_PITCH_RANGE_DEG.contains(&pitch_deg) {
+            return Err(CameraGeometryError::Invalid {
+                path: "head".into(),
+                message: format!(
+                    "head pitch {pitch_deg} deg is outside the Nao's HeadPitch range {:.1}..{:.1} deg",
+                    HEAD_PITCH_RANGE_DEG.start(),
+                    HEAD_PITCH_RANGE_DEG.end()
+                ),
+            });
+        }
+        let head = HeadPitch {
+            pitch_deg,
+            ..self.head
+        };
+        Ok(Self {
+            head,
+            top: head.apply(&self.straight[0]),
+            bottom: head.apply(&self.straight[1]),
+            ..*self
+        })
     }
 
     pub fn mount(&self, camera: CameraPosition) -> &CameraMount {
@@ -119,13 +206,40 @@ mod tests {
     fn the_built_in_configuration_is_the_design_documents() {
         let geometry = CameraGeometry::nao();
         assert_eq!((geometry.top.width, geometry.top.height), (640, 480));
-        assert_eq!(geometry.bottom.pitch_down_deg, 39.7);
+        let straight = geometry.with_head_pitch(0.0).expect("in range");
+        assert_eq!(straight.bottom.pitch_down_deg, 39.7);
+        assert!(HEAD_PITCH_RANGE_DEG.contains(&geometry.head.pitch_deg));
         // 61 degrees across 640 pixels.
         assert!(
             (geometry.top.fx() - 543.3).abs() < 0.5,
             "{}",
             geometry.top.fx()
         );
+    }
+
+    #[test]
+    fn pitching_the_head_turns_both_cameras_about_its_joint() {
+        let straight = CameraGeometry::nao()
+            .with_head_pitch(0.0)
+            .expect("in range");
+        let pitched = straight.with_head_pitch(20.0).expect("in range");
+        let head = straight.head;
+        for (before, after) in [
+            (straight.top, pitched.top),
+            (straight.bottom, pitched.bottom),
+        ] {
+            assert!((after.pitch_down_deg - before.pitch_down_deg - 20.0).abs() < 1e-4);
+            // The distance to the joint is kept; looking down moves the camera down.
+            let reach = |m: &CameraMount| {
+                (m.forward_m - head.joint_forward_m).hypot(m.height_m - head.joint_height_m)
+            };
+            assert!((reach(&after) - reach(&before)).abs() < 1e-5);
+            assert!(after.height_m < before.height_m);
+        }
+        let error = straight
+            .with_head_pitch(35.0)
+            .expect_err("past the joint's limit");
+        assert!(error.to_string().contains("HeadPitch range"), "{error}");
     }
 
     #[test]

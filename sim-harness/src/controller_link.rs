@@ -206,7 +206,7 @@ impl Iceoryx2Link {
             let Some(command) = spawn else {
                 return Err(LinkError::Start(format!(
                     "no controller runs in domain {}",
-                    domain.name()
+                    domain.label()
                 )));
             };
             child = Some(
@@ -343,7 +343,7 @@ fn running_controller(domain: &Domain) -> Result<Option<NodeInfo>, LinkError> {
         many => Err(LinkError::Start(format!(
             "{} controllers run in domain {} (pids {:?}); stop all but one",
             many.len(),
-            domain.name(),
+            domain.label(),
             many.iter().map(|n| n.pid).collect::<Vec<_>>()
         ))),
     }

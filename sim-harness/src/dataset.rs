@@ -4,6 +4,10 @@
 //! Files are written byte for byte the same for the same episode (fixed zip timestamps,
 //! deterministic deflate), to a temporary name first and renamed when complete, so an
 //! interrupted recording never leaves a half-written episode behind.
+//!
+//! Identity: `dataset.json` lists each episode's SHA-256 and a content hash over all of them
+//! (SHA-256 of the lines `"{seed} {sha256}\n"` in seed order), so a model's manifest can name
+//! the exact data it learned from, and a reader can tell when a file is missing or changed.
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -102,11 +106,11 @@ impl EpisodeRecording {
         zip.finish().map(Cursor::into_inner).unwrap_or_default()
     }
 
-    /// Writes the episode to `path` through a temporary file.
-    pub fn write(&self, path: &Path) -> Result<u64, DatasetError> {
+    /// Writes the episode to `path` through a temporary file; returns its size and SHA-256.
+    pub fn write(&self, path: &Path) -> Result<(u64, String), DatasetError> {
         let bytes = self.to_npz();
         write_atomically(path, &bytes)?;
-        Ok(bytes.len() as u64)
+        Ok((bytes.len() as u64, sha256_hex(&bytes)))
     }
 }
 
@@ -242,6 +246,50 @@ pub struct EpisodeEntry {
     pub rows: usize,
     pub duration_s: f64,
     pub bytes: u64,
+    /// SHA-256 of the `.npz` file, lowercase hex.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sha256: Option<String>,
+}
+
+/// SHA-256 of `bytes` as lowercase hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// A dataset whose files do not match its index.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetIntegrityError {
+    #[error("{directory}: episode {seed} is listed in dataset.json but {file} is missing")]
+    Missing {
+        directory: PathBuf,
+        seed: u64,
+        file: String,
+    },
+    #[error(
+        "{directory}: {file} (episode {seed}) is not the file dataset.json lists: its SHA-256 is {found}, expected {expected}; re-record it with `dribble record`"
+    )]
+    Changed {
+        directory: PathBuf,
+        seed: u64,
+        file: String,
+        expected: String,
+        found: String,
+    },
+    #[error(
+        "{directory}: dataset.json lists no hash for episode {seed}; re-record it with `dribble record`"
+    )]
+    Unhashed { directory: PathBuf, seed: u64 },
+    #[error("{directory}: the episodes {missing:?} were asked for but are not in this dataset")]
+    SeedsAbsent {
+        directory: PathBuf,
+        missing: Vec<u64>,
+    },
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
 }
 
 /// `dataset.json`: the episodes and how they were made.
@@ -252,6 +300,9 @@ pub struct DatasetIndex {
     pub simulator: serde_json::Value,
     pub expert: serde_json::Value,
     pub episodes: Vec<EpisodeEntry>,
+    /// SHA-256 over the episodes' hashes (module documentation); kept current by `save`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub content_hash: Option<String>,
 }
 
 impl DatasetIndex {
@@ -271,9 +322,75 @@ impl DatasetIndex {
         }
     }
 
+    /// The content hash of the listed episodes, if every one of them has a hash.
+    pub fn compute_content_hash(&self) -> Option<String> {
+        let mut lines = String::new();
+        for entry in &self.episodes {
+            lines.push_str(&format!("{} {}\n", entry.seed, entry.sha256.as_ref()?));
+        }
+        Some(sha256_hex(lines.as_bytes()))
+    }
+
+    /// Checks that every listed episode's file is there and is the file that was recorded.
+    pub fn verify(&self, directory: &Path) -> Result<(), DatasetIntegrityError> {
+        for entry in &self.episodes {
+            let path = directory.join(&entry.file);
+            let bytes = match fs::read(&path) {
+                Ok(bytes) => bytes,
+                Err(error) if error.kind() == std::io::ErrorKind::NotFound => {
+                    return Err(DatasetIntegrityError::Missing {
+                        directory: directory.to_owned(),
+                        seed: entry.seed,
+                        file: entry.file.clone(),
+                    });
+                }
+                Err(source) => return Err(DatasetError::Io { path, source }.into()),
+            };
+            let Some(expected) = &entry.sha256 else {
+                return Err(DatasetIntegrityError::Unhashed {
+                    directory: directory.to_owned(),
+                    seed: entry.seed,
+                });
+            };
+            let found = sha256_hex(&bytes);
+            if &found != expected {
+                return Err(DatasetIntegrityError::Changed {
+                    directory: directory.to_owned(),
+                    seed: entry.seed,
+                    file: entry.file.clone(),
+                    expected: expected.clone(),
+                    found,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Fails unless every seed of `seeds` is in the dataset.
+    pub fn require_seeds(
+        &self,
+        directory: &Path,
+        seeds: impl IntoIterator<Item = u64>,
+    ) -> Result<(), DatasetIntegrityError> {
+        let missing: Vec<u64> = seeds
+            .into_iter()
+            .filter(|s| !self.episodes.iter().any(|e| e.seed == *s))
+            .collect();
+        if missing.is_empty() {
+            Ok(())
+        } else {
+            Err(DatasetIntegrityError::SeedsAbsent {
+                directory: directory.to_owned(),
+                missing,
+            })
+        }
+    }
+
     pub fn save(&self, directory: &Path) -> Result<(), DatasetError> {
         let path = directory.join(Self::FILE);
-        let text = serde_json::to_string_pretty(self).map_err(|e| DatasetError::Format {
+        let mut index = self.clone();
+        index.content_hash = self.compute_content_hash();
+        let text = serde_json::to_string_pretty(&index).map_err(|e| DatasetError::Format {
             path: path.clone(),
             message: e.to_string(),
         })?;

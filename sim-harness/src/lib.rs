@@ -20,5 +20,6 @@ pub mod runner;
 pub mod simulation;
 pub mod text;
 pub mod top_view;
+pub mod visibility;
 pub mod walk;
 pub mod world;

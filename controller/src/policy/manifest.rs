@@ -112,10 +112,27 @@ pub struct Gating {
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainingRecord {
+    /// What the model learned from, for people (a directory, or what the fixture is).
     pub dataset: String,
+    /// The content hash of the training dataset (`dataset.json`'s `content_hash`).
+    pub dataset_hash: Option<String>,
+    /// The content hash of the dataset `test_error` was measured on.
+    pub test_dataset_hash: Option<String>,
+    /// Epochs trained, and the one whose weights these are (best validation error).
     pub epochs: u32,
+    pub best_epoch: Option<u32>,
+    /// Seed of every random choice in training.
+    pub seed: Option<u64>,
+    /// Training episodes held out to choose the checkpoint.
+    pub validation_seeds: Option<Vec<u64>>,
+    pub wall_time_s: Option<f64>,
+    pub torch_version: Option<String>,
+    /// The paper's error (DESIGN.md, "Metrics") on the training, validation and test data.
     pub train_error: Option<f64>,
+    pub validation_error: Option<f64>,
     pub test_error: Option<f64>,
+    /// Anything else the trainer records about how (augmentation, sampling, data).
+    pub notes: Option<String>,
 }
 
 /// A parsed and checked `policy.toml`.

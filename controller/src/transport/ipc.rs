@@ -102,8 +102,15 @@ impl Domain {
     /// emulated robot needs them on tmpfs, e.g. `/dev/shm/iceoryx2/`).
     pub const ROOT_ENV: &str = "DRIBBLE_IPC_ROOT";
 
-    /// The default domain (`None`) or a named one: letters, digits, `-` and `_`, at most 32.
+    /// What [`Domain::label`] calls the default domain; as a name it also means that one.
+    pub const DEFAULT_LABEL: &str = "default";
+
+    /// The default domain (`None`, or the name `default`) or a named one: letters, digits,
+    /// `-` and `_`, at most 32.
     pub fn new(name: Option<&str>) -> Result<Self, TransportError> {
+        // "default" is how the default domain is printed; whoever passes it back (a script
+        // copying a log line, a parent starting a child) means that domain, not a new one.
+        let name = name.filter(|n| *n != Self::DEFAULT_LABEL);
         let mut config = Config::default();
         // Dead nodes are cleaned up explicitly, so that a start can say what it cleaned.
         config.global.node.cleanup_dead_nodes_on_creation = false;
@@ -143,8 +150,15 @@ impl Domain {
         Self::new(name.as_deref())
     }
 
-    pub fn name(&self) -> &str {
-        self.name.as_deref().unwrap_or("default")
+    /// The domain's name; `None` for iceoryx2's default configuration. Pass this on to a
+    /// child process (as `--domain`) only when it is `Some`.
+    pub fn name(&self) -> Option<&str> {
+        self.name.as_deref()
+    }
+
+    /// The name for people and logs: the name, or `default`.
+    pub fn label(&self) -> &str {
+        self.name.as_deref().unwrap_or(Self::DEFAULT_LABEL)
     }
 
     /// A node of this domain, after removing what dead nodes left behind; also returns how

@@ -1,0 +1,122 @@
+"""Recorded demonstrations as `dribble record` writes them (DESIGN.md, "Dataset").
+
+A dataset directory holds one `.npz` per episode and `dataset.json`, which lists every
+episode's SHA-256 and a content hash over them: SHA-256 of the lines `"{seed} {sha256}\\n"`
+in seed order (the same rule as `dribble_sim::dataset`). Loading checks both, so a model's
+manifest can name the exact data it learned from, and a missing or changed episode is an
+error that says which one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+PHASES = ("search", "approach", "align", "dribble")
+
+
+class DatasetError(Exception):
+    """A dataset directory that cannot be used as it is."""
+
+
+@dataclass
+class Episode:
+    seed: int
+    top: np.ndarray  # u8 [T, 120, 160]
+    bottom: np.ndarray  # u8 [T, 60, 80]
+    command: np.ndarray  # f32 [T, 3]
+    phase: np.ndarray  # u8 [T]
+
+    def __len__(self) -> int:
+        return len(self.phase)
+
+
+@dataclass
+class Dataset:
+    directory: Path
+    content_hash: str
+    episodes: list[Episode]
+
+    @property
+    def rows(self) -> int:
+        return sum(len(e) for e in self.episodes)
+
+    def seeds(self) -> list[int]:
+        return [e.seed for e in self.episodes]
+
+    def subset(self, seeds: list[int]) -> list[Episode]:
+        wanted = set(seeds)
+        return [e for e in self.episodes if e.seed in wanted]
+
+
+def content_hash(entries: list[dict]) -> str:
+    lines = "".join(f"{e['seed']} {e['sha256']}\n" for e in sorted(entries, key=lambda e: e["seed"]))
+    return hashlib.sha256(lines.encode()).hexdigest()
+
+
+def read_index(directory: Path) -> dict:
+    directory = Path(directory)
+    path = directory / "dataset.json"
+    if not path.is_file():
+        raise DatasetError(f"{directory} is not a dataset: it has no dataset.json (record one with `dribble record`)")
+    try:
+        index = json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise DatasetError(f"{path} is not valid JSON: {error}") from error
+    if not index.get("episodes"):
+        raise DatasetError(f"{path} lists no episodes")
+    return index
+
+
+def verify(directory: Path, index: dict) -> str:
+    """Checks every listed episode against its hash; returns the dataset's content hash."""
+    directory = Path(directory)
+    for entry in index["episodes"]:
+        path = directory / entry["file"]
+        if not path.is_file():
+            raise DatasetError(f"{directory}: episode {entry['seed']} is listed in dataset.json but {entry['file']} is missing")
+        expected = entry.get("sha256")
+        if expected is None:
+            raise DatasetError(f"{directory}: dataset.json lists no hash for episode {entry['seed']}; re-record it with `dribble record`")
+        found = hashlib.sha256(path.read_bytes()).hexdigest()
+        if found != expected:
+            raise DatasetError(
+                f"{directory}: {entry['file']} (episode {entry['seed']}) is not the file dataset.json lists: "
+                f"its SHA-256 is {found}, expected {expected}; re-record it with `dribble record`"
+            )
+    digest = content_hash(index["episodes"])
+    if index.get("content_hash") not in (None, digest):
+        raise DatasetError(f"{directory}: dataset.json's content_hash {index['content_hash']} does not match its episodes ({digest})")
+    return digest
+
+
+def load(directory: Path, require_seeds: list[int] | None = None) -> Dataset:
+    """Loads and checks a dataset; `require_seeds` must all be in it."""
+    directory = Path(directory)
+    index = read_index(directory)
+    digest = verify(directory, index)
+    if require_seeds is not None:
+        present = {e["seed"] for e in index["episodes"]}
+        missing = [s for s in require_seeds if s not in present]
+        if missing:
+            raise DatasetError(f"{directory}: the episodes {missing} were asked for but are not in this dataset")
+    episodes = []
+    for entry in sorted(index["episodes"], key=lambda e: e["seed"]):
+        with np.load(directory / entry["file"]) as arrays:
+            episode = Episode(
+                seed=int(entry["seed"]),
+                top=arrays["top"],
+                bottom=arrays["bottom"],
+                command=arrays["command"].astype(np.float32),
+                phase=arrays["phase"],
+            )
+        rows = len(episode)
+        shapes = (episode.top.shape, episode.bottom.shape, episode.command.shape)
+        if shapes != ((rows, 120, 160), (rows, 60, 80), (rows, 3)) or rows != entry["rows"]:
+            raise DatasetError(f"{directory / entry['file']}: arrays {shapes} do not hold the {entry['rows']} rows dataset.json lists")
+        episodes.append(episode)
+    return Dataset(directory, digest, episodes)

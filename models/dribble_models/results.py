@@ -1,0 +1,127 @@
+"""The results table: the paper's numbers beside ours, from the files `scripts/train` writes.
+
+    python -m dribble_models.results --row "CNN (paper setup)=models/policy/cnn" ... --out FILE
+
+Each model directory holds `policy.toml`, `scores.json` (the trainer's errors),
+`score_train.json` and `score_test.json` (`dribble score`, the robot's code) and
+`eval.json` (`dribble eval --trajectories` on the 20 test episodes). Every number in the
+table is read from those files; nothing is typed in but the paper's own row.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+from pathlib import Path
+
+from .dataset import PHASES
+from .manifest import load
+
+#: Table 1 of the paper and its text (forward pass on a laptop i7; none given for the H-CNN).
+PAPER = [
+    ("CNN (paper)", 0.12, 0.16, 3, "1.8 ms (i7)"),
+    ("H-CNN (paper)", 0.15, 0.17, 3, "-"),
+    ("R-CNN (paper)", 0.036, 0.14, 4, "2.1 ms (i7)"),
+]
+
+
+def read(path: Path) -> dict | None:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def model_row(name: str, directory: Path) -> dict:
+    manifest = load(directory / "policy.toml")
+    train, test = read(directory / "score_train.json"), read(directory / "score_test.json")
+    evaluation = read(directory / "eval.json")
+    row = {"name": name, "directory": str(directory), "kind": manifest["kind"], "training": manifest["training"]}
+    row["train_error"] = train["error"] if train else manifest["training"].get("train_error")
+    row["test_error"] = test["error"] if test else manifest["training"].get("test_error")
+    row["phases"] = {p: (test["phases"][p]["error"] if test else None) for p in PHASES}
+    row["step_ms"] = test["step_ms"]["median"] if test else None
+    if evaluation:
+        episodes = evaluation["episodes"]
+        goals = [e["duration_s"] for e in episodes if e["outcome"] == "goal"]
+        row["goals"], row["episodes"] = len(goals), len(episodes)
+        row["time_to_goal_s"] = statistics.median(goals) if goals else None
+    return row
+
+
+def fmt(value, digits: int = 3) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def table(rows: list[dict]) -> str:
+    lines = [
+        "| model | training | train error | test error | goals /20 | median time to goal | forward pass |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, train, test, goals, forward in PAPER:
+        lines.append(f"| {name} | paper: Adam, 100 episodes | {train} | {test} | {goals} | - | {forward} |")
+    for row in rows:
+        t = row["training"]
+        how = f"{t['epochs']} epochs (kept {t.get('best_epoch', '-')}), {t.get('wall_time_s', 0) / 60:.0f} min"
+        goals = f"{row['goals']}" if "goals" in row else "-"
+        seconds = f"{row['time_to_goal_s']:.1f} s" if row.get("time_to_goal_s") else "-"
+        forward = f"{row['step_ms']:.2f} ms (tract, 1 core of this machine)" if row["step_ms"] else "-"
+        lines.append(f"| {row['name']} | {how} | {fmt(row['train_error'])} | {fmt(row['test_error'])} | {goals} | {seconds} | {forward} |")
+    return "\n".join(lines)
+
+
+def phase_table(rows: list[dict]) -> str:
+    lines = ["| model | " + " | ".join(PHASES) + " |", "|---|" + "---|" * len(PHASES)]
+    for row in rows:
+        lines.append(f"| {row['name']} | " + " | ".join(fmt(row["phases"][p]) for p in PHASES) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m dribble_models.results", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--row", action="append", default=[], help="NAME=MODEL_DIRECTORY, in table order")
+    parser.add_argument("--out", type=Path, help="also write the tables (Markdown) here")
+    parser.add_argument("--choose", type=Path, help="write the chosen model's directory name here: most goals on the selection episodes (select.json), then lowest validation error")
+    args = parser.parse_args(argv)
+    rows = []
+    for spec in args.row:
+        name, _, directory = spec.partition("=")
+        if not (Path(directory) / "policy.toml").is_file():
+            print(f"error: {directory} holds no policy.toml", file=sys.stderr)
+            return 2
+        rows.append(model_row(name, Path(directory)))
+    text = "\n".join(
+        [
+            table(rows),
+            "",
+            "Test error per expert phase (`dribble score` on the 20 test episodes):",
+            "",
+            phase_table(rows),
+            "",
+        ]
+    )
+    print(text)
+    if args.out:
+        args.out.write_text(text)
+    if args.choose and rows:
+        chosen = choose(rows)
+        args.choose.write_text(Path(chosen["directory"]).name + "\n")
+        print(f"shipped: {chosen['directory']} ({chosen['selection']})")
+    return 0
+
+
+def choose(rows: list[dict]) -> dict:
+    """Most goals on the selection episodes, then the lowest validation error. Never the
+    test episodes: they are for reporting only."""
+    for row in rows:
+        selection = read(Path(row["directory"]) / "select.json")
+        goals = sum(e["outcome"] == "goal" for e in selection["episodes"]) if selection else 0
+        episodes = len(selection["episodes"]) if selection else 0
+        validation = row["training"].get("validation_error", math.inf)
+        row["selection_key"] = (-goals, validation)
+        row["selection"] = f"{goals} goals in {episodes} selection episodes, validation error {validation:.3f}"
+    return min(rows, key=lambda r: r["selection_key"])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

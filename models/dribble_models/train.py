@@ -1,0 +1,579 @@
+"""Behaviour cloning of the expert: trains the paper's CNN, H-CNN or R-CNN on recorded
+demonstrations and exports a model directory the controller loads.
+
+    python -m dribble_models.train --kind cnn|hcnn|rcnn --dataset DIR --out DIR [--test-dataset DIR]
+
+- Data: the `.npz` episodes of a `dribble record` directory, checked against `dataset.json`
+  (hashes); the manifest records the content hash of the data trained and tested on.
+- Validation: whole training episodes held out (a seeded choice, never test episodes); the
+  epoch with the lowest validation error gives the shipped weights.
+- Error: the paper's metric as the robot would produce it: the Euclidean distance between the
+  command the controller sends (network output clamped to [-1, 1]; a non-finite output is a
+  stop) and the expert's, averaged over rows. `dribble score` computes the same with the
+  robot's code.
+- CNN and H-CNN: Adam on the mean squared error over shuffled rows; an epoch visits
+  `--epoch-fraction` of the training rows (consecutive 30 Hz frames are nearly the same).
+  H-CNN: k-means (K = 4) on the 5-bin histograms of the training rows, one CNN per cluster,
+  each trained on its cluster's rows.
+- R-CNN: 100-step windows of whole episodes, in `--lanes` parallel lanes; the LSTM state is
+  carried from one window to the next of the same episode and zero at an episode's start,
+  as the controller carries it (truncated back-propagation through time). Evaluation steps
+  every episode from a zero state.
+- Resumable: a checkpoint after every epoch (`--checkpoint-dir`, under ~/.cache/dribble by
+  default); running the same command again continues where it stopped. Every random choice
+  is seeded (`--seed`), per epoch, so a resumed run is the run it would have been.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from . import contract
+from .dataset import PHASES, Dataset, DatasetError, Episode, load
+from .export import export_policy
+from .gating import fit_centroids
+from .manifest import TrainingRecord
+from .networks import CNN, HCNN, RCNN
+
+SCALE = np.float32(contract.INPUT_SCALE)
+DEFAULT_EPOCHS = {"cnn": 12, "hcnn": 12, "rcnn": 12}
+CHECKPOINT_FORMAT = 1
+
+
+# ---------------------------------------------------------------------------------------
+# The metric
+
+
+def sent_commands(prediction: np.ndarray) -> np.ndarray:
+    """What the controller publishes for raw outputs [N,3]: each component clamped to
+    [-1, 1]; a row with a non-finite component becomes a stop."""
+    prediction = np.asarray(prediction, dtype=np.float32)
+    finite = np.all(np.isfinite(prediction), axis=1, keepdims=True)
+    return np.where(finite, np.clip(np.nan_to_num(prediction), -1.0, 1.0), 0.0).astype(np.float32)
+
+
+def row_errors(prediction: np.ndarray, expert: np.ndarray) -> np.ndarray:
+    """Per-row Euclidean distance between the sent command and the expert's, float64."""
+    difference = sent_commands(prediction).astype(np.float64) - np.asarray(expert, np.float64)
+    return np.sqrt(np.sum(difference * difference, axis=1))
+
+
+def score(predictions: list[np.ndarray], episodes: list[Episode]) -> dict:
+    """The error overall, per expert phase and per episode."""
+    errors = [row_errors(p, e.command) for p, e in zip(predictions, episodes)]
+    every = np.concatenate(errors) if errors else np.zeros(0)
+    phases = np.concatenate([e.phase for e in episodes]) if episodes else np.zeros(0, np.uint8)
+    per_phase = {}
+    for index, name in enumerate(PHASES):
+        chosen = every[phases == index]
+        per_phase[name] = {"error": float(chosen.mean()) if len(chosen) else None, "rows": int(len(chosen))}
+    return {
+        "error": float(every.mean()) if len(every) else math.nan,
+        "rows": int(len(every)),
+        "phases": per_phase,
+        "episodes": [{"seed": e.seed, "error": float(r.mean()), "rows": len(r)} for e, r in zip(episodes, errors)],
+    }
+
+
+# ---------------------------------------------------------------------------------------
+# Inputs
+
+
+def to_input(thumbnails: np.ndarray) -> torch.Tensor:
+    """u8 [N,H,W] -> f32 [N,1,H,W], `pixel * scale` as the robot computes it."""
+    return torch.from_numpy(np.asarray(thumbnails)).unsqueeze(1).float() * torch.tensor(SCALE)
+
+
+def gating_features(top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
+    """The 10-value H-CNN feature of many rows at once: `numpy.histogram(x, 5, (0, 255))`
+    of each thumbnail over its pixel count, top then bottom (gating.py, one row at a time)."""
+
+    def histograms(images: np.ndarray) -> np.ndarray:
+        bins = np.minimum(images.reshape(len(images), -1) // 51, 4)
+        counts = np.stack([(bins == b).sum(axis=1) for b in range(contract.HISTOGRAM_BINS)], axis=1)
+        return (counts / bins.shape[1]).astype(np.float32)
+
+    return np.concatenate([histograms(top), histograms(bottom)], axis=1)
+
+
+def nearest(features: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+    """Nearest centroid (Euclidean, in f32 like the robot), the first on a tie."""
+    distances = np.linalg.norm(features[:, None, :] - centroids[None, :, :].astype(np.float32), axis=2)
+    return np.argmin(distances, axis=1)
+
+
+@dataclass
+class Augment:
+    """Photometric and geometric jitter of training batches (off in the paper setup)."""
+
+    brightness: float = 0.2  # gain in [1 - b, 1 + b]
+    offset: float = 0.06  # added, in network units (pixel / 255)
+    noise: float = 0.02  # Gaussian, network units
+    shift: int = 4  # pixels of the top thumbnail (half for the bottom)
+
+    def __call__(self, top: torch.Tensor, bottom: torch.Tensor, generator: torch.Generator):
+        n = top.shape[0]
+        gain = 1 + (torch.rand(n, 1, 1, 1, generator=generator) * 2 - 1) * self.brightness
+        offset = (torch.rand(n, 1, 1, 1, generator=generator) * 2 - 1) * self.offset
+        shifts = torch.randint(-self.shift, self.shift + 1, (n, 2), generator=generator)
+        out = []
+        for images, divisor in ((top, 1), (bottom, 2)):
+            shifted = torch.empty_like(images)
+            pad = self.shift // divisor
+            padded = nn.functional.pad(images, (pad, pad, pad, pad), mode="replicate")
+            h, w = images.shape[2:]
+            for i in range(n):
+                dy, dx = (int(s) // divisor for s in shifts[i])
+                shifted[i] = padded[i, :, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
+            noisy = shifted * gain + offset + torch.randn(shifted.shape, generator=generator) * self.noise
+            out.append(noisy.clamp(0.0, 1.0))
+        return out[0], out[1]
+
+
+# ---------------------------------------------------------------------------------------
+# Prediction as the robot runs each kind
+
+
+@torch.no_grad()
+def predict_cnn(model: CNN, episode: Episode, chunk: int = 512) -> np.ndarray:
+    model.eval()
+    out = [model(to_input(episode.top[i : i + chunk]), to_input(episode.bottom[i : i + chunk])).numpy() for i in range(0, len(episode), chunk)]
+    return np.concatenate(out) if out else np.zeros((0, 3), np.float32)
+
+
+@torch.no_grad()
+def predict_hcnn(model: HCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
+    model.eval()
+    clusters = nearest(gating_features(episode.top, episode.bottom), model.centroids)
+    out = np.zeros((len(episode), 3), np.float32)
+    for k, expert in enumerate(model.experts):
+        rows = np.flatnonzero(clusters == k)
+        for i in range(0, len(rows), chunk):
+            part = rows[i : i + chunk]
+            out[part] = expert(to_input(episode.top[part]), to_input(episode.bottom[part])).numpy()
+    return out
+
+
+@torch.no_grad()
+def predict_rcnn(model: RCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
+    """The whole episode from a zero state, as the controller steps it."""
+    model.eval()
+    features = torch.cat(
+        [model.features(to_input(episode.top[i : i + chunk]), to_input(episode.bottom[i : i + chunk])) for i in range(0, len(episode), chunk)]
+    )
+    out, _ = model.lstm(features.unsqueeze(0), model.zero_state())
+    return model.head(out[0]).numpy()
+
+
+def predict(model, kind: str, episodes: list[Episode]) -> list[np.ndarray]:
+    step = {"cnn": predict_cnn, "hcnn": predict_hcnn, "rcnn": predict_rcnn}[kind]
+    return [step(model, e) for e in episodes]
+
+
+def rcnn_forward_windows(model: RCNN, top: torch.Tensor, bottom: torch.Tensor, window: int) -> torch.Tensor:
+    """One episode [T,1,H,W] through the R-CNN in windows of `window` steps, the state carried
+    from window to window (detached, as in training) and zero at the start: [T,3]."""
+    state = model.zero_state()
+    outputs = []
+    for start in range(0, top.shape[0], window):
+        out, state = model(top[None, start : start + window], bottom[None, start : start + window], state)
+        state = (state[0].detach(), state[1].detach())
+        outputs.append(out[0])
+    return torch.cat(outputs)
+
+
+# ---------------------------------------------------------------------------------------
+# Training
+
+
+@dataclass
+class Rows:
+    """Training rows of many episodes, concatenated: u8 images, f32 commands, u8 phases."""
+
+    top: np.ndarray
+    bottom: np.ndarray
+    command: np.ndarray
+    phase: np.ndarray
+
+    @staticmethod
+    def of(episodes: list[Episode]) -> "Rows":
+        return Rows(
+            np.concatenate([e.top for e in episodes]),
+            np.concatenate([e.bottom for e in episodes]),
+            np.concatenate([e.command for e in episodes]),
+            np.concatenate([e.phase for e in episodes]),
+        )
+
+
+def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """A seeded random `fraction` of `rows` (indices), in batches."""
+    count = max(1, int(round(len(rows) * fraction)))
+    chosen = rng.permutation(rows)[:count]
+    return [np.sort(chosen[i : i + batch]) for i in range(0, len(chosen), batch)]
+
+
+def lanes_of(episodes: list[Episode], order: np.ndarray, lanes: int) -> list[list[int]]:
+    """Episodes (in `order`) dealt into lanes of nearly equal total length."""
+    result: list[list[int]] = [[] for _ in range(lanes)]
+    totals = [0] * lanes
+    for e in order:
+        lane = int(np.argmin(totals))
+        result[lane].append(int(e))
+        totals[lane] += len(episodes[e])
+    return result
+
+
+def window_schedule(episodes: list[Episode], lanes: list[list[int]], window: int) -> list[list[tuple[int, int] | None]]:
+    """Per training step, per lane: (episode, first row) of its next window, or None."""
+    per_lane = [[(e, s) for e in lane for s in range(0, len(episodes[e]), window)] for lane in lanes]
+    steps = max((len(l) for l in per_lane), default=0)
+    return [[l[t] if t < len(l) else None for l in per_lane] for t in range(steps)]
+
+
+class Training:
+    """One model's training run: data, model, optimiser, checkpoints."""
+
+    def __init__(self, args: argparse.Namespace, dataset: Dataset, test: Dataset | None):
+        self.args = args
+        self.kind = args.kind
+        self.dataset = dataset
+        self.test = test
+        seeds = np.array(dataset.seeds())
+        held = int(args.validation_episodes)
+        if held >= len(seeds):
+            raise DatasetError(f"{dataset.directory} has {len(seeds)} episodes: too few to hold out {held} for validation")
+        chosen = np.random.default_rng([args.seed, 1]).permutation(seeds)
+        self.validation_seeds = sorted(int(s) for s in chosen[:held])
+        self.train_episodes = dataset.subset(sorted(int(s) for s in chosen[held:]))
+        self.validation_episodes = dataset.subset(self.validation_seeds)
+        torch.manual_seed(args.seed)
+        self.augment = Augment() if args.augment else None
+        self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
+        if self.kind == "cnn":
+            self.model = CNN()
+        elif self.kind == "rcnn":
+            self.model = RCNN()
+        else:
+            features = gating_features(self.rows.top, self.rows.bottom)
+            sample = np.random.default_rng([args.seed, 2]).permutation(len(features))[: args.kmeans_rows]
+            centroids = fit_centroids(features[sample], args.clusters, seed=args.seed)
+            self.model = HCNN(centroids)
+            self.clusters = nearest(features, self.model.centroids)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=args.lr)
+        self.epoch = 0
+        self.history: list[dict] = []
+        self.best = {"error": math.inf, "epoch": 0, "state": None}
+        self.wall_s = 0.0
+
+    # -- checkpoints ---------------------------------------------------------------------
+
+    def identity(self) -> dict:
+        a = self.args
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "kind": a.kind,
+            "dataset_hash": self.dataset.content_hash,
+            "seed": a.seed,
+            "lr": a.lr,
+            "batch_size": a.batch_size,
+            "epoch_fraction": a.epoch_fraction,
+            "validation_episodes": a.validation_episodes,
+            "augment": a.augment,
+            "balance_phases": a.balance_phases,
+            "window": a.window,
+            "lanes": a.lanes,
+            "clusters": a.clusters,
+        }
+
+    def save(self, path: Path) -> None:
+        state = {
+            "identity": self.identity(),
+            "epoch": self.epoch,
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "history": self.history,
+            "best": self.best,
+            "wall_s": self.wall_s,
+            "centroids": getattr(self.model, "centroids", None),
+        }
+        temporary = path.with_suffix(".partial")
+        torch.save(state, temporary)
+        os.replace(temporary, path)
+
+    def resume(self, path: Path) -> bool:
+        if not path.is_file():
+            return False
+        state = torch.load(path, weights_only=False)
+        if state["identity"] != self.identity():
+            different = {k: (state["identity"].get(k), v) for k, v in self.identity().items() if state["identity"].get(k) != v}
+            raise DatasetError(
+                f"the checkpoint {path} belongs to another run ({different}: checkpoint vs now); "
+                "pass --fresh to start over or --checkpoint-dir to keep both"
+            )
+        if state["centroids"] is not None:
+            self.model = HCNN(state["centroids"])
+            self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self.args.lr)
+            self.clusters = nearest(gating_features(self.rows.top, self.rows.bottom), self.model.centroids)
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.epoch, self.history, self.best, self.wall_s = state["epoch"], state["history"], state["best"], state["wall_s"]
+        return True
+
+    # -- one epoch -----------------------------------------------------------------------
+
+    def batch_inputs(self, index: np.ndarray, generator: torch.Generator):
+        top, bottom = to_input(self.rows.top[index]), to_input(self.rows.bottom[index])
+        if self.augment:
+            top, bottom = self.augment(top, bottom, generator)
+        return top, bottom, torch.from_numpy(self.rows.command[index])
+
+    def epoch_rows(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray]]:
+        """(network, row batch) pairs of one epoch, shuffled; network 0 for a CNN."""
+        every = np.arange(len(self.rows.phase))
+        if self.args.balance_phases:
+            # Each phase as often as the most frequent one (sampled with replacement).
+            counts = np.bincount(self.rows.phase, minlength=4)
+            weights = np.where(counts[self.rows.phase] > 0, 1.0 / counts[self.rows.phase], 0.0)
+            count = len(every)
+            every = rng.choice(every, size=count, p=weights / weights.sum())
+        if self.kind == "cnn":
+            return [(0, b) for b in row_batches(every, self.args.epoch_fraction, self.args.batch_size, rng)]
+        pairs = []
+        for k in range(len(self.model.experts)):
+            mine = every[self.clusters[every] == k]
+            if len(mine):
+                pairs += [(k, b) for b in row_batches(mine, self.args.epoch_fraction, self.args.batch_size, rng)]
+        order = rng.permutation(len(pairs))
+        return [pairs[i] for i in order]
+
+    def train_rows_epoch(self, rng, generator, bar) -> float:
+        losses = []
+        work = self.epoch_rows(rng)
+        bar.reset(total=len(work))
+        self.model.train()
+        for k, index in work:
+            network = self.model if self.kind == "cnn" else self.model.experts[k]
+            top, bottom, target = self.batch_inputs(index, generator)
+            loss = nn.functional.mse_loss(network(top, bottom), target)
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimizer.step()
+            losses.append(loss.item())
+            bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
+            bar.update(1)
+        return float(np.mean(losses))
+
+    def train_rcnn_epoch(self, rng, generator, bar) -> float:
+        episodes = self.train_episodes
+        count = max(1, int(round(len(episodes) * self.args.epoch_fraction)))
+        order = rng.permutation(len(episodes))[:count]
+        schedule = window_schedule(episodes, lanes_of(episodes, order, self.args.lanes), self.args.window)
+        bar.reset(total=len(schedule))
+        model, window, lanes = self.model, self.args.window, self.args.lanes
+        model.train()
+        h, c = model.zero_state(lanes)
+        losses = []
+        for step in schedule:
+            top = torch.zeros(lanes, window, 1, *contract.TOP_SHAPE)
+            bottom = torch.zeros(lanes, window, 1, *contract.BOTTOM_SHAPE)
+            target = torch.zeros(lanes, window, 3)
+            mask = torch.zeros(lanes, window)
+            fresh = torch.ones(1, lanes, 1)
+            for lane, item in enumerate(step):
+                if item is None:
+                    continue
+                e, start = item
+                episode = episodes[e]
+                end = min(start + window, len(episode))
+                n = end - start
+                t, b = to_input(episode.top[start:end]), to_input(episode.bottom[start:end])
+                if self.augment:
+                    t, b = self.augment(t, b, generator)
+                top[lane, :n], bottom[lane, :n] = t, b
+                target[lane, :n] = torch.from_numpy(episode.command[start:end])
+                mask[lane, :n] = 1.0
+                if start == 0:
+                    fresh[0, lane, 0] = 0.0  # a new episode: zero state, as on the robot
+            out, (h, c) = model(top, bottom, (h * fresh, c * fresh))
+            h, c = h.detach(), c.detach()
+            squared = ((out - target) ** 2).mean(dim=2)
+            loss = (squared * mask).sum() / mask.sum().clamp(min=1.0)
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimizer.step()
+            losses.append(loss.item())
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
+            bar.update(1)
+        return float(np.mean(losses)) if losses else math.nan
+
+    def run(self, checkpoint: Path) -> None:
+        epochs = self.args.epochs
+        if self.resume(checkpoint):
+            print(f"resuming from {checkpoint}: {self.epoch} of {epochs} epochs done", file=sys.stderr)
+        interval = 0.5 if sys.stderr.isatty() else 30.0
+        outer = tqdm(total=epochs, initial=self.epoch, desc=f"{self.kind} epochs", unit="epoch", dynamic_ncols=True, mininterval=interval)
+        bar = tqdm(total=1, desc="  batches", leave=False, dynamic_ncols=True, mininterval=interval)
+        while self.epoch < epochs:
+            started = time.monotonic()
+            rng = np.random.default_rng([self.args.seed, 100 + self.epoch])
+            generator = torch.Generator().manual_seed(self.args.seed * 1000 + self.epoch)
+            if self.kind == "rcnn":
+                loss = self.train_rcnn_epoch(rng, generator, bar)
+            else:
+                loss = self.train_rows_epoch(rng, generator, bar)
+            validation = score(predict(self.model, self.kind, self.validation_episodes), self.validation_episodes)
+            self.epoch += 1
+            self.wall_s += time.monotonic() - started
+            self.history.append({"epoch": self.epoch, "loss": loss, "validation_error": validation["error"], "wall_s": self.wall_s})
+            if validation["error"] < self.best["error"]:
+                self.best = {"error": validation["error"], "epoch": self.epoch, "state": {k: v.clone() for k, v in self.model.state_dict().items()}}
+            self.save(checkpoint)
+            outer.set_postfix(loss=f"{loss:.4f}", val_error=f"{validation['error']:.4f}", best=f"{self.best['error']:.4f}@{self.best['epoch']}")
+            outer.update(1)
+        bar.close()
+        outer.close()
+        if self.best["state"] is not None:
+            self.model.load_state_dict(self.best["state"])
+
+
+def plot_history(history: list[dict], path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    epochs = [h["epoch"] for h in history]
+    figure, loss_axis = plt.subplots(figsize=(7, 4), dpi=110)
+    loss_axis.plot(epochs, [h["loss"] for h in history], "o-", color="tab:blue", label="training loss (MSE)")
+    loss_axis.set_xlabel("epoch")
+    loss_axis.set_ylabel("training loss (MSE)", color="tab:blue")
+    error_axis = loss_axis.twinx()
+    error_axis.plot(epochs, [h["validation_error"] for h in history], "s-", color="tab:red", label="validation error")
+    best = min(history, key=lambda h: h["validation_error"])
+    error_axis.axvline(best["epoch"], color="tab:gray", linestyle=":", label=f"kept: epoch {best['epoch']}")
+    error_axis.set_ylabel("validation error (paper metric)", color="tab:red")
+    figure.legend(loc="upper right", fontsize=8)
+    loss_axis.set_title(title, fontsize=10)
+    figure.tight_layout()
+    figure.savefig(path)
+    plt.close(figure)
+
+
+def notes_of(args: argparse.Namespace) -> str:
+    parts = [
+        f"Adam lr {args.lr}",
+        f"batch {args.batch_size}" if args.kind != "rcnn" else f"{args.lanes} lanes of {args.window}-step windows",
+        f"epoch fraction {args.epoch_fraction}",
+        f"{args.validation_episodes} validation episodes",
+    ]
+    if args.kind == "hcnn":
+        parts.append(f"K {args.clusters} (k-means on {args.kmeans_rows} sampled rows)")
+    parts.append("augmented" if args.augment else "no augmentation")
+    if args.balance_phases:
+        parts.append("phase-balanced sampling")
+    parts.append("train_error over every episode of the training dataset (validation ones too)")
+    return "; ".join(parts)
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m dribble_models.train",
+        description="Train a policy (behaviour cloning of the expert) and export it for the controller.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--kind", choices=contract.KINDS, required=True, help="network: the paper's CNN, H-CNN or R-CNN")
+    parser.add_argument("--dataset", type=Path, required=True, help="training data: a `dribble record` directory")
+    parser.add_argument("--out", type=Path, required=True, help="model directory to write (policy.toml, ONNX, loss curve, scores)")
+    parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
+    parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
+    parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    parser.add_argument("--validation-episodes", type=int, default=10, help="training episodes held out to choose the checkpoint")
+    parser.add_argument("--window", type=int, default=100, help="R-CNN: steps per training window")
+    parser.add_argument("--lanes", type=int, default=4, help="R-CNN: episodes trained side by side")
+    parser.add_argument("--clusters", type=int, default=contract.DEFAULT_CLUSTERS, help="H-CNN: K")
+    parser.add_argument("--kmeans-rows", type=int, default=20000, help="H-CNN: rows sampled for k-means")
+    parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
+    parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
+    parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")
+    parser.add_argument("--checkpoint-dir", type=Path, help="where the resumable checkpoint lives (default ~/.cache/dribble/checkpoints/<out>)")
+    parser.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint and start over")
+    args = parser.parse_args(argv)
+    if args.epochs is None:
+        args.epochs = DEFAULT_EPOCHS[args.kind]
+    if not 0.0 < args.epoch_fraction <= 1.0:
+        parser.error("--epoch-fraction must be in (0, 1]")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    torch.set_num_threads(args.threads)
+    try:
+        dataset = load(args.dataset)
+        test = load(args.test_dataset) if args.test_dataset else None
+        if test is not None and set(test.seeds()) & set(dataset.seeds()):
+            raise DatasetError(f"{args.test_dataset} shares episodes {sorted(set(test.seeds()) & set(dataset.seeds()))} with {args.dataset}")
+        print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}", file=sys.stderr)
+        training = Training(args, dataset, test)
+    except DatasetError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    checkpoint_dir = args.checkpoint_dir or Path.home() / ".cache" / "dribble" / "checkpoints" / args.out.resolve().name
+    checkpoint_dir.mkdir(parents=True, exist_ok=True)
+    checkpoint = checkpoint_dir / f"{args.kind}.pt"
+    if args.fresh and checkpoint.exists():
+        checkpoint.unlink()
+    try:
+        training.run(checkpoint)
+    except DatasetError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+    print("scoring the kept weights on the training and test data", file=sys.stderr)
+    scores = {"train": score(predict(training.model, args.kind, dataset.episodes), dataset.episodes)}
+    scores["validation"] = score(predict(training.model, args.kind, training.validation_episodes), training.validation_episodes)
+    if test is not None:
+        scores["test"] = score(predict(training.model, args.kind, test.episodes), test.episodes)
+    record = TrainingRecord(
+        dataset=str(args.dataset.name),
+        epochs=training.epoch,
+        dataset_hash=dataset.content_hash,
+        test_dataset_hash=test.content_hash if test else None,
+        best_epoch=training.best["epoch"],
+        seed=args.seed,
+        validation_seeds=training.validation_seeds,
+        wall_time_s=round(training.wall_s, 1),
+        torch_version=torch.__version__,
+        train_error=scores["train"]["error"],
+        validation_error=scores["validation"]["error"],
+        test_error=scores["test"]["error"] if test else None,
+        notes=notes_of(args),
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    export_policy(training.model, args.out, record)
+    plot_history(training.history, args.out / "loss_curve.png", f"{args.kind} on {args.dataset.name} ({dataset.rows} rows)")
+    (args.out / "scores.json").write_text(json.dumps({"kind": args.kind, "dataset_hash": dataset.content_hash, **scores, "history": training.history}, indent=1) + "\n")
+    for name, result in scores.items():
+        phases = ", ".join(f"{p} {v['error']:.4f}" for p, v in result["phases"].items() if v["error"] is not None)
+        print(f"{name} error {result['error']:.4f} over {result['rows']} rows ({phases})")
+    print(f"wrote {args.out / 'policy.toml'} (epoch {training.best['epoch']} of {training.epoch}, {training.wall_s / 60:.1f} min of training)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""The trainer: data checks, the R-CNN's windows against stepping, a tiny run of each kind
+that the robot's own code (`dribble score`) loads and scores to the trainer's numbers.
+No test here asserts how well anything learns."""
+
+import hashlib
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from dribble_models import dataset as ds
+from dribble_models.networks import RCNN, RCNNStep
+from dribble_models.train import (
+    gating_features,
+    main,
+    predict_rcnn,
+    rcnn_forward_windows,
+    row_errors,
+    to_input,
+)
+from dribble_models.gating import gating_feature
+
+from test_dataset import dribble_binary
+
+
+def write_dataset(directory: Path, seeds: list[int], rows: int, rng: np.random.Generator) -> Path:
+    """A dataset in `dribble record`'s format with random thumbnails and commands."""
+    directory.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for seed in seeds:
+        file = f"episode_{seed:05}.npz"
+        np.savez_compressed(
+            directory / file,
+            top=rng.integers(0, 256, (rows, 120, 160), dtype=np.uint8),
+            bottom=rng.integers(0, 256, (rows, 60, 80), dtype=np.uint8),
+            command=rng.uniform(-1, 1, (rows, 3)).astype(np.float32),
+            robot_pose=np.zeros((rows, 3), np.float32),
+            ball=np.zeros((rows, 2), np.float32),
+            time_s=np.arange(rows) / 30.0,
+            phase=rng.integers(0, 4, rows, dtype=np.uint8),
+        )
+        digest = hashlib.sha256((directory / file).read_bytes()).hexdigest()
+        entries.append({"seed": seed, "file": file, "outcome": "time_limit", "rows": rows, "duration_s": rows / 30, "bytes": 0, "sha256": digest})
+    index = {"format": 1, "project_version": "test", "simulator": {}, "expert": "", "episodes": entries, "content_hash": ds.content_hash(entries)}
+    (directory / "dataset.json").write_text(json.dumps(index))
+    return directory
+
+
+def test_a_missing_or_changed_episode_is_named(tmp_path, rng):
+    directory = write_dataset(tmp_path / "data", [1, 2], 5, rng)
+    assert ds.load(directory).rows == 10
+    (directory / "episode_00002.npz").unlink()
+    with pytest.raises(ds.DatasetError, match="episode 2 is listed in dataset.json but episode_00002.npz is missing"):
+        ds.load(directory)
+    directory = write_dataset(tmp_path / "changed", [1], 5, rng)
+    with open(directory / "episode_00001.npz", "ab") as file:
+        file.write(b"x")
+    with pytest.raises(ds.DatasetError, match="is not the file dataset.json lists"):
+        ds.load(directory)
+    with pytest.raises(ds.DatasetError, match=r"the episodes \[3\] were asked for"):
+        ds.load(write_dataset(tmp_path / "short", [1, 2], 5, rng), require_seeds=[1, 3])
+
+
+def test_the_vectorised_gating_feature_is_the_robots(rng):
+    tops = rng.integers(0, 256, (6, 120, 160), dtype=np.uint8)
+    bottoms = rng.integers(0, 256, (6, 60, 80), dtype=np.uint8)
+    tops[0] = 255
+    bottoms[1] = 51
+    many = gating_features(tops, bottoms)
+    for i in range(6):
+        assert np.array_equal(many[i], gating_feature(tops[i], bottoms[i]))
+
+
+def test_the_error_is_measured_on_what_the_controller_sends():
+    expert = np.array([[0.5, 0.0, 1.0], [0.0, 0.0, 0.0]], np.float32)
+    raw = np.array([[0.5, 0.0, 3.0], [np.nan, 1.0, 0.0]], np.float32)
+    # 3.0 is clamped to 1.0; a NaN anywhere makes the whole command a stop.
+    assert np.allclose(row_errors(raw, expert), [0.0, 0.0])
+
+
+def test_rcnn_window_training_and_stepped_evaluation_agree(rng):
+    model = RCNN().eval()
+    steps = 230
+    tops = rng.integers(0, 256, (steps, 120, 160), dtype=np.uint8)
+    bottoms = rng.integers(0, 256, (steps, 60, 80), dtype=np.uint8)
+    episode = ds.Episode(0, tops, bottoms, np.zeros((steps, 3), np.float32), np.zeros(steps, np.uint8))
+    with torch.no_grad():
+        windows = rcnn_forward_windows(model, to_input(tops), to_input(bottoms), window=100).numpy()
+        step = RCNNStep(model)
+        h, c = model.zero_state()
+        stepped = []
+        for i in range(steps):
+            command, h, c = step(to_input(tops[i : i + 1]), to_input(bottoms[i : i + 1]), h, c)
+            stepped.append(command.numpy()[0])
+    whole = predict_rcnn(model, episode)
+    assert np.abs(windows - np.array(stepped)).max() < 1e-5
+    assert np.abs(whole - np.array(stepped)).max() < 1e-5
+
+
+def run_score(policy: Path, data: Path, tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(dribble_binary()), "score", "--policy", str(policy), "--dataset", str(data), *extra],
+        capture_output=True,
+        text=True,
+    )
+
+
+@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn"])
+def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3], 24, rng)
+    test = write_dataset(tmp_path / "test", [10000], 24, rng)
+    out = tmp_path / kind
+    argv = ["--kind", kind, "--dataset", str(train), "--test-dataset", str(test), "--out", str(out)]
+    argv += ["--epochs", "1", "--validation-episodes", "1", "--batch-size", "16", "--window", "10", "--lanes", "2"]
+    argv += ["--checkpoint-dir", str(tmp_path / "checkpoints"), "--threads", "1"]
+    assert main(argv) == 0
+    for name in ("policy.toml", "loss_curve.png", "scores.json"):
+        assert (out / name).is_file(), name
+    trainer = json.loads((out / "scores.json").read_text())
+    for data, role in ((train, "train"), (test, "test")):
+        result = run_score(out / "policy.toml", data, tmp_path, "--expect", role, "--json", str(tmp_path / f"{role}.json"))
+        assert result.returncode == 0, result.stdout + result.stderr
+        robot = json.loads((tmp_path / f"{role}.json").read_text())
+        assert robot["rows"] == trainer[role]["rows"]
+        assert abs(robot["error"] - trainer[role]["error"]) < 1e-4, (robot["error"], trainer[role]["error"])
+        for phase, value in trainer[role]["phases"].items():
+            if value["error"] is not None:
+                assert abs(robot["phases"][phase]["error"] - value["error"]) < 1e-4, phase
+    # Run again: the checkpoint is complete, so it resumes at the end and exports the same.
+    manifest = (out / "policy.toml").read_text()
+    assert main(argv) == 0
+    assert (out / "policy.toml").read_text() == manifest
+
+
+def test_data_the_model_was_not_trained_on_is_refused_where_it_must_be(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
+    other = write_dataset(tmp_path / "other", [1, 2], 12, rng)
+    out = tmp_path / "cnn"
+    argv = ["--kind", "cnn", "--dataset", str(train), "--out", str(out), "--epochs", "1", "--validation-episodes", "1"]
+    argv += ["--checkpoint-dir", str(tmp_path / "checkpoints"), "--threads", "1"]
+    assert main(argv) == 0
+    result = run_score(out / "policy.toml", other, tmp_path, "--expect", "train")
+    assert result.returncode != 0
+    assert "a model trained on other data" in result.stderr, result.stderr
+    # Without --expect it scores, and says the data is not what the manifest names.
+    result = run_score(out / "policy.toml", other, tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "data its manifest does not name" in result.stdout
+    # The checkpoint of that run does not silently continue on other data.
+    argv_other = [a if a != str(train) else str(other) for a in argv]
+    assert main(argv_other) == 2
+    # A dataset with an episode missing is refused by both sides, naming the episode.
+    (other / "episode_00002.npz").unlink()
+    result = run_score(out / "policy.toml", other, tmp_path)
+    assert result.returncode != 0 and "episode 2 is listed in dataset.json" in result.stderr, result.stderr

@@ -1,0 +1,247 @@
+//! `dribble score`: the paper's error of a learned policy on a recorded dataset, computed by
+//! the robot's own code. Every episode is replayed through `OnnxPolicy` exactly as the
+//! controller runs it: the R-CNN stepped from a zero state at each episode's start, the
+//! H-CNN gated in Rust. The error of a row is the Euclidean distance between the command the
+//! controller would send (clamped to [-1, 1], a non-finite answer sent as a stop) and the
+//! expert's (DESIGN.md, "Metrics"); the trainer computes the same number in PyTorch.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail, ensure};
+use clap::{Args, ValueEnum};
+use dribble_controller::policy::{OnnxPolicy, PolicyManifest};
+use dribble_controller::{BottomThumbnail, Policy, PolicyInput, SpeedCommand, TopThumbnail};
+use dribble_sim::dataset::{DatasetIndex, read_npz};
+use dribble_sim::expert::Phase;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+
+#[derive(Debug, Args)]
+pub struct ScoreArgs {
+    /// The policy's manifest (`policy.toml`).
+    #[arg(long)]
+    policy: PathBuf,
+    /// A recorded dataset directory (with dataset.json), e.g. from `dribble record`.
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Fail unless the dataset is the one the policy's manifest names for this role: `train`
+    /// (the data it learned from) or `test` (the data its test error was measured on).
+    #[arg(long, value_enum)]
+    expect: Option<Role>,
+    /// Also write the errors (overall, per phase, per episode) as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum Role {
+    Train,
+    Test,
+}
+
+/// Sum of errors and row count.
+#[derive(Clone, Copy, Debug, Default)]
+struct ErrorSum {
+    sum: f64,
+    rows: u64,
+}
+
+impl ErrorSum {
+    fn add(&mut self, error: f64) {
+        self.sum += error;
+        self.rows += 1;
+    }
+
+    fn mean(&self) -> Option<f64> {
+        (self.rows > 0).then(|| self.sum / self.rows as f64)
+    }
+}
+
+pub fn run(args: &ScoreArgs) -> anyhow::Result<()> {
+    let index = DatasetIndex::load(&args.dataset)?
+        .with_context(|| format!("no {} in {}", DatasetIndex::FILE, args.dataset.display()))?;
+    ensure!(
+        !index.episodes.is_empty(),
+        "{} lists no episodes",
+        args.dataset.join(DatasetIndex::FILE).display()
+    );
+    index.verify(&args.dataset)?;
+    let hash = index
+        .compute_content_hash()
+        .context("the dataset has episodes without a hash")?;
+    let (mut policy, manifest) = OnnxPolicy::load(&args.policy)
+        .with_context(|| format!("loading the policy {}", args.policy.display()))?;
+    let role = role_of(&manifest, &hash);
+    println!(
+        "policy {} ({:?}), dataset {} ({} episodes, content hash {}): {}",
+        args.policy.display(),
+        manifest.kind,
+        args.dataset.display(),
+        index.episodes.len(),
+        short(&hash),
+        match role {
+            Some(Role::Train) => "the data it was trained on",
+            Some(Role::Test) => "the test data named in its manifest",
+            None => "data its manifest does not name",
+        }
+    );
+    if let Some(expected) = args.expect {
+        check_role(&manifest, expected, role, &hash, &args.policy)?;
+    }
+
+    let total_rows: usize = index.episodes.iter().map(|e| e.rows).sum();
+    let progress = ProgressBar::new(total_rows as u64);
+    progress.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} rows, {elapsed} elapsed, eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let started = Instant::now();
+    let (mut overall, mut phases) = (ErrorSum::default(), [ErrorSum::default(); 4]);
+    let mut episodes = Vec::new();
+    let mut step_ms: Vec<f64> = Vec::with_capacity(total_rows);
+    let (mut top, mut bottom) = (TopThumbnail::black(), BottomThumbnail::black());
+    for entry in &index.episodes {
+        let path = args.dataset.join(&entry.file);
+        let arrays = read_npz(&path)?;
+        let array = |name: &str| {
+            arrays
+                .get(name)
+                .with_context(|| format!("{} has no {name} array", path.display()))
+        };
+        let (tops, bottoms) = (&array("top")?.data, &array("bottom")?.data);
+        let commands = array("command")?.as_f32();
+        let phase = &array("phase")?.data;
+        let rows = phase.len();
+        ensure!(
+            tops.len() == rows * top.as_bytes().len()
+                && bottoms.len() == rows * bottom.as_bytes().len()
+                && commands.len() == rows * 3,
+            "{}: the arrays disagree on the number of rows ({rows} phases)",
+            path.display()
+        );
+        policy.reset();
+        let mut episode = ErrorSum::default();
+        for row in 0..rows {
+            top.as_bytes_mut()
+                .copy_from_slice(&tops[row * 19_200..(row + 1) * 19_200]);
+            bottom
+                .as_bytes_mut()
+                .copy_from_slice(&bottoms[row * 4_800..(row + 1) * 4_800]);
+            let step_started = Instant::now();
+            let answer = policy.step(PolicyInput {
+                top: &top,
+                bottom: &bottom,
+            });
+            step_ms.push(step_started.elapsed().as_secs_f64() * 1e3);
+            let sent = match answer {
+                Ok(out) => {
+                    SpeedCommand::new(out.forward, out.left, out.turn).unwrap_or(SpeedCommand::STOP)
+                }
+                Err(_) => SpeedCommand::STOP,
+            };
+            let expert = &commands[row * 3..row * 3 + 3];
+            let error = sent
+                .as_array()
+                .iter()
+                .zip(expert)
+                .map(|(a, b)| f64::from(a - b).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            overall.add(error);
+            episode.add(error);
+            if let Some(sum) = phases.get_mut(usize::from(phase[row])) {
+                sum.add(error);
+            }
+        }
+        episodes.push((entry.seed, episode));
+        progress.inc(rows as u64);
+    }
+    progress.finish_and_clear();
+
+    let mean = overall.mean().context("the dataset has no rows")?;
+    step_ms.sort_by(f64::total_cmp);
+    let quantile = |q: f64| step_ms[((step_ms.len() - 1) as f64 * q).round() as usize];
+    let (median_ms, p99_ms) = (quantile(0.5), quantile(0.99));
+    println!(
+        "error {mean:.4} over {} rows ({:.1} s; policy step median {median_ms:.3} ms, p99 {p99_ms:.3} ms, this machine)",
+        overall.rows,
+        started.elapsed().as_secs_f64(),
+    );
+    for (phase, sum) in Phase::ALL.iter().zip(&phases) {
+        match sum.mean() {
+            Some(error) => println!("  {:<9} {error:.4} ({} rows)", phase.name(), sum.rows),
+            None => println!("  {:<9} -      (0 rows)", phase.name()),
+        }
+    }
+    if let Some(path) = &args.json {
+        let report = json!({
+            "policy": args.policy,
+            "dataset": args.dataset,
+            "dataset_hash": hash,
+            "role": role.map(|r| format!("{r:?}").to_lowercase()),
+            "error": mean,
+            "rows": overall.rows,
+            "step_ms": {"median": median_ms, "p99": p99_ms},
+            "phases": Phase::ALL.iter().zip(&phases).map(|(p, s)| {
+                (p.name().to_owned(), json!({"error": s.mean(), "rows": s.rows}))
+            }).collect::<serde_json::Map<_, _>>(),
+            "episodes": episodes.iter().map(|(seed, s)| {
+                json!({"seed": seed, "error": s.mean(), "rows": s.rows})
+            }).collect::<Vec<_>>(),
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// Which of the manifest's datasets has content hash `hash`.
+fn role_of(manifest: &PolicyManifest, hash: &str) -> Option<Role> {
+    let training = &manifest.training;
+    if training.dataset_hash.as_deref() == Some(hash) {
+        Some(Role::Train)
+    } else if training.test_dataset_hash.as_deref() == Some(hash) {
+        Some(Role::Test)
+    } else {
+        None
+    }
+}
+
+fn check_role(
+    manifest: &PolicyManifest,
+    expected: Role,
+    found: Option<Role>,
+    hash: &str,
+    policy: &Path,
+) -> anyhow::Result<()> {
+    if found == Some(expected) {
+        return Ok(());
+    }
+    let named = match expected {
+        Role::Train => manifest.training.dataset_hash.as_deref(),
+        Role::Test => manifest.training.test_dataset_hash.as_deref(),
+    };
+    let what = match expected {
+        Role::Train => "trained on",
+        Role::Test => "tested on",
+    };
+    match named {
+        Some(named) => bail!(
+            "{} was {what} dataset {} ({}), but this dataset is {}: a model trained on other \
+             data, or a dataset with episodes missing, added or re-recorded",
+            policy.display(),
+            short(named),
+            manifest.training.dataset,
+            short(hash)
+        ),
+        None => bail!(
+            "{} names no dataset it was {what} (its [training] record has no hash)",
+            policy.display()
+        ),
+    }
+}
+
+fn short(hash: &str) -> &str {
+    hash.get(..12).unwrap_or(hash)
+}
