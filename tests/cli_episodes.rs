@@ -62,6 +62,17 @@ fn recording_is_byte_identical_resumes_and_inspects() {
     assert!(log.contains("1 episode(s) already recorded"), "{log}");
     assert!(log.contains("2 episodes"), "{log}");
     assert_eq!(bytes, fs::read(first.join(file)).expect("kept"));
+    // dataset.json names every file by its hash, and the whole by a content hash.
+    let index = dribble_sim::dataset::DatasetIndex::load(&first)
+        .expect("readable")
+        .expect("dataset.json");
+    assert_eq!(
+        index.episodes[0].sha256.as_deref(),
+        Some(dribble_sim::dataset::sha256_hex(&bytes).as_str())
+    );
+    assert!(index.content_hash.is_some());
+    assert_eq!(index.content_hash, index.compute_content_hash());
+    index.verify(&first).expect("the files are the listed ones");
 
     let (histograms, sheet) = (first.join("h.png"), first.join("t.png"));
     let inspected = dribble(&[
@@ -71,10 +82,27 @@ fn recording_is_byte_identical_resumes_and_inspects() {
         path(&histograms),
         "--thumbnails",
         path(&sheet),
+        "--head-pitch-sweep",
     ]);
     let log = text(&inspected);
     assert!(inspected.status.success(), "{log}");
     assert!(log.contains("2 episodes, 120 rows"), "{log}");
+    let pitch = dribble_sim::camera_geometry::CameraGeometry::nao().head.pitch_deg;
+    assert!(
+        log.contains(&format!("visibility, head pitch {pitch:.1} deg (as recorded)")),
+        "{log}"
+    );
+    assert!(log.contains("head pitch sweep") && log.contains("29.5"), "{log}");
+
+    // Data from other cameras is never mixed in: resuming a dataset recorded with another
+    // head pitch is refused.
+    let mut other = index.clone();
+    other.simulator["cameras"]["head"]["pitch_deg"] = serde_json::json!(pitch - 5.0);
+    other.save(&second).expect("saved");
+    let refused = dribble(&["record", "--episodes", "5..7", "--out", path(&second)]);
+    let log = text(&refused);
+    assert!(!refused.status.success(), "{log}");
+    assert!(log.contains("another simulator, camera or expert configuration"), "{log}");
     assert!(log.contains("time limit: 2"), "{log}");
     assert!(histograms.is_file() && sheet.is_file());
     for dir in [first, second] {

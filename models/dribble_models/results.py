@@ -77,6 +77,40 @@ def phase_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def failure_analysis(rows: list[dict]) -> str:
+    """Where the episodes without a goal ended, from the 10 Hz paths of `eval.json`: did the
+    robot ever reach the ball (within 0.3 m), did the ball move toward the target goal, and
+    how the episode ended."""
+    lines = [
+        "| model | failed | outcome (time limit / ball out / other) | reached the ball | ball moved >0.5 m toward goal | median ball distance to goal at the end |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        evaluation = read(Path(row["directory"]) / "eval.json")
+        if not evaluation:
+            continue
+        failed = [e for e in evaluation["episodes"] if e["outcome"] != "goal"]
+        reached = toward = 0
+        outcomes = {"time_limit": 0, "ball_out": 0}
+        ends = []
+        for e in failed:
+            robot, ball = e["robot"], e["ball"]
+            side = 1.0 if ball[0][0] >= 0 else -1.0
+            goal = (4.5 * side, 0.0)
+            gap = min(math.dist(r, b) for r, b in zip(robot, ball))
+            reached += gap < 0.3
+            start, end = math.dist(ball[0], goal), math.dist(ball[-1], goal)
+            toward += start - end > 0.5
+            ends.append(end)
+            outcomes[e["outcome"]] = outcomes.get(e["outcome"], 0) + 1
+        other = len(failed) - outcomes["time_limit"] - outcomes["ball_out"]
+        median_end = f"{statistics.median(ends):.2f} m" if ends else "-"
+        lines.append(
+            f"| {row['name']} | {len(failed)} | {outcomes['time_limit']} / {outcomes['ball_out']} / {other} | {reached} | {toward} | {median_end} |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dribble_models.results", description=__doc__.split("\n\n")[0])
     parser.add_argument("--row", action="append", default=[], help="NAME=MODEL_DIRECTORY, in table order")
@@ -97,6 +131,10 @@ def main(argv: list[str] | None = None) -> int:
             "Test error per expert phase (`dribble score` on the 20 test episodes):",
             "",
             phase_table(rows),
+            "",
+            "Episodes without a goal (closed loop, 20 test episodes; from the trajectories):",
+            "",
+            failure_analysis(rows),
             "",
         ]
     )

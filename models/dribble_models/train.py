@@ -41,7 +41,7 @@ from torch import nn
 from tqdm import tqdm
 
 from . import contract
-from .dataset import PHASES, Dataset, DatasetError, Episode, load
+from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
@@ -245,11 +245,10 @@ def window_schedule(episodes: list[Episode], lanes: list[list[int]], window: int
 class Training:
     """One model's training run: data, model, optimiser, checkpoints."""
 
-    def __init__(self, args: argparse.Namespace, dataset: Dataset, test: Dataset | None):
+    def __init__(self, args: argparse.Namespace, dataset: Dataset):
         self.args = args
         self.kind = args.kind
         self.dataset = dataset
-        self.test = test
         seeds = np.array(dataset.seeds())
         held = int(args.validation_episodes)
         if held >= len(seeds):
@@ -525,11 +524,13 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     try:
         dataset = load(args.dataset)
-        test = load(args.test_dataset) if args.test_dataset else None
-        if test is not None and set(test.seeds()) & set(dataset.seeds()):
-            raise DatasetError(f"{args.test_dataset} shares episodes {sorted(set(test.seeds()) & set(dataset.seeds()))} with {args.dataset}")
+        if args.test_dataset:
+            # Checked now, read only after training: test data never reaches training.
+            test_seeds = {int(e["seed"]) for e in read_index(args.test_dataset)["episodes"]}
+            if test_seeds & set(dataset.seeds()):
+                raise DatasetError(f"{args.test_dataset} shares episodes {sorted(test_seeds & set(dataset.seeds()))} with {args.dataset}")
         print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}", file=sys.stderr)
-        training = Training(args, dataset, test)
+        training = Training(args, dataset)
     except DatasetError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -540,6 +541,7 @@ def main(argv: list[str] | None = None) -> int:
         checkpoint.unlink()
     try:
         training.run(checkpoint)
+        test = load(args.test_dataset) if args.test_dataset else None
     except DatasetError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
