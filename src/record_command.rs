@@ -49,13 +49,15 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let mut index = match DatasetIndex::load(&args.out)? {
         Some(index) => {
             // Resuming: the new episodes must come from the same simulator and expert.
+            let mut differences = Vec::new();
+            config_differences("", &index.simulator, &simulator, &mut differences);
+            config_differences("expert", &index.expert, &expert, &mut differences);
             ensure!(
-                index.simulator == simulator && index.expert == expert,
+                differences.is_empty(),
                 "{} was recorded with another simulator, camera or expert configuration \
-                 (recorded: {}; now: {}); record into a new directory",
+                 ({}); record into a new directory",
                 args.out.display(),
-                index.simulator,
-                simulator
+                differences.join("; ")
             );
             index
         }
@@ -166,4 +168,37 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             .unwrap_or("(incomplete)")
     );
     Ok(())
+}
+
+/// Where two recorded configurations differ, one `path: recorded A, now B` per leaf.
+fn config_differences(
+    path: &str,
+    recorded: &serde_json::Value,
+    now: &serde_json::Value,
+    out: &mut Vec<String>,
+) {
+    use serde_json::Value;
+    match (recorded, now) {
+        (Value::Object(a), Value::Object(b)) => {
+            let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
+            keys.sort();
+            keys.dedup();
+            for key in keys {
+                let child = if path.is_empty() {
+                    key.clone()
+                } else {
+                    format!("{path}.{key}")
+                };
+                let missing = Value::Null;
+                config_differences(
+                    &child,
+                    a.get(key).unwrap_or(&missing),
+                    b.get(key).unwrap_or(&missing),
+                    out,
+                );
+            }
+        }
+        (a, b) if a != b => out.push(format!("{path}: recorded {a}, now {b}")),
+        _ => {}
+    }
 }

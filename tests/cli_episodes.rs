@@ -87,12 +87,19 @@ fn recording_is_byte_identical_resumes_and_inspects() {
     let log = text(&inspected);
     assert!(inspected.status.success(), "{log}");
     assert!(log.contains("2 episodes, 120 rows"), "{log}");
-    let pitch = dribble_sim::camera_geometry::CameraGeometry::nao().head.pitch_deg;
+    let pitch = dribble_sim::camera_geometry::CameraGeometry::nao()
+        .head
+        .pitch_deg;
     assert!(
-        log.contains(&format!("visibility, head pitch {pitch:.1} deg (as recorded)")),
+        log.contains(&format!(
+            "visibility, head pitch {pitch:.1} deg (as recorded)"
+        )),
         "{log}"
     );
-    assert!(log.contains("head pitch sweep") && log.contains("29.5"), "{log}");
+    assert!(
+        log.contains("head pitch sweep") && log.contains("29.5"),
+        "{log}"
+    );
 
     // Data from other cameras is never mixed in: resuming a dataset recorded with another
     // head pitch is refused.
@@ -102,8 +109,23 @@ fn recording_is_byte_identical_resumes_and_inspects() {
     let refused = dribble(&["record", "--episodes", "5..7", "--out", path(&second)]);
     let log = text(&refused);
     assert!(!refused.status.success(), "{log}");
-    assert!(log.contains("another simulator, camera or expert configuration"), "{log}");
-    assert!(log.contains("time limit: 2"), "{log}");
+    assert!(
+        log.contains("another simulator, camera or expert configuration"),
+        "{log}"
+    );
+    // The message names what differs, and only that.
+    assert!(
+        log.contains(&format!(
+            "cameras.head.pitch_deg: recorded {:?}, now {pitch:?}",
+            pitch - 5.0
+        )),
+        "{log}"
+    );
+    assert!(
+        log.contains("time_limit_s: recorded 2.0, now 90.0"),
+        "{log}"
+    );
+    assert!(!log.contains("cameras.top"), "{log}");
     assert!(histograms.is_file() && sheet.is_file());
     for dir in [first, second] {
         fs::remove_dir_all(dir).expect("clean up");

@@ -10,7 +10,7 @@ import torch
 
 from . import contract
 from .manifest import Manifest, TrainingRecord
-from .networks import CNN, HCNN, RCNN, RCNNStep
+from .networks import CNN, HCNN, RCNN, ModalCNN, RCNNStep
 
 
 def _example_inputs() -> tuple[torch.Tensor, torch.Tensor]:
@@ -37,7 +37,7 @@ def _export(module: torch.nn.Module, args: tuple, path: Path, inputs: list[str],
     return path
 
 
-def export_cnn(model: CNN, path: Path) -> Path:
+def export_cnn(model: CNN | ModalCNN, path: Path) -> Path:
     return _export(
         model,
         _example_inputs(),
@@ -62,7 +62,7 @@ def export_rcnn_step(model: RCNN, path: Path) -> Path:
     )
 
 
-def export_policy(model: CNN | HCNN | RCNN, directory: Path, training: TrainingRecord) -> Path:
+def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training: TrainingRecord) -> Path:
     """Writes the model's ONNX file(s) and `policy.toml` into `directory`; returns the manifest."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -74,7 +74,7 @@ def export_policy(model: CNN | HCNN | RCNN, directory: Path, training: TrainingR
     elif isinstance(model, RCNN):
         export_rcnn_step(model, directory / "policy.onnx")
         manifest = Manifest("rcnn", ["policy.onnx"], training, lstm_units=model.lstm.hidden_size)
-    elif isinstance(model, CNN):
+    elif isinstance(model, (CNN, ModalCNN)):
         export_cnn(model, directory / "policy.onnx")
         manifest = Manifest("cnn", ["policy.onnx"], training)
     else:

@@ -53,6 +53,37 @@ class CNN(nn.Module):
         return self.head(self.features(top, bottom))
 
 
+class ModalCNN(nn.Module):
+    """Beyond the paper: the CNN with `modes` command hypotheses and a learned choice among
+    them (winner-takes-all training, Guzman-Rivera et al. 2012; Rupprecht et al. 2017).
+
+    Why: where the ball is out of sight the expert turns toward it, choosing the direction
+    from ground truth. An image does not say which way; a regression network answers the
+    mean of "left" and "right", a turn near zero, and the robot stands. With hypotheses,
+    one learns "turn left", another "turn right", and the choice picks one: a decisive search.
+
+    Exported as a CNN: the choice (the hypothesis with the largest logit; the mean of tied
+    ones) is part of the graph, so the controller runs it unchanged as `kind = "cnn"`."""
+
+    def __init__(self, modes: int = 2) -> None:
+        super().__init__()
+        self.modes = modes
+        self.features = CameraFeatures()
+        self.trunk = nn.Sequential(nn.Linear(FEATURES, 128), nn.ReLU())
+        self.hypotheses = nn.Linear(128, 3 * modes)
+        self.choice = nn.Linear(128, modes)
+
+    def forward_all(self, top: torch.Tensor, bottom: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(hypotheses [B,modes,3], choice logits [B,modes])."""
+        hidden = self.trunk(self.features(top, bottom))
+        return self.hypotheses(hidden).view(-1, self.modes, 3), self.choice(hidden)
+
+    def forward(self, top: torch.Tensor, bottom: torch.Tensor) -> torch.Tensor:
+        hypotheses, logits = self.forward_all(top, bottom)
+        chosen = (logits == logits.max(dim=1, keepdim=True).values).to(hypotheses.dtype)
+        return (hypotheses * chosen.unsqueeze(2)).sum(dim=1) / chosen.sum(dim=1, keepdim=True)
+
+
 class RCNN(nn.Module):
     """Features, an LSTM of 64 units, dense 3, over sequences [B,T,1,H,W]."""
 

@@ -4,7 +4,7 @@
 
 Each model directory holds `policy.toml`, `scores.json` (the trainer's errors),
 `score_train.json` and `score_test.json` (`dribble score`, the robot's code) and
-`eval.json` (`dribble eval --trajectories` on the 20 test episodes). Every number in the
+`eval.json` (the 20 test episodes in closed loop, summarised by `eval_summary`). Every number in the
 table is read from those files; nothing is typed in but the paper's own row.
 """
 
@@ -78,35 +78,30 @@ def phase_table(rows: list[dict]) -> str:
 
 
 def failure_analysis(rows: list[dict]) -> str:
-    """Where the episodes without a goal ended, from the 10 Hz paths of `eval.json`: did the
+    """Where the episodes without a goal ended, from `eval.json` (eval_summary): did the
     robot ever reach the ball (within 0.3 m), did the ball move toward the target goal, and
     how the episode ended."""
     lines = [
-        "| model | failed | outcome (time limit / ball out / other) | reached the ball | ball moved >0.5 m toward goal | median ball distance to goal at the end |",
-        "|---|---|---|---|---|---|",
+        "| model | failed | outcome (time limit / ball out / other) | reached the ball | ball moved >0.5 m toward goal | median ball distance to goal at the end | median share of the episode standing |",
+        "|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         evaluation = read(Path(row["directory"]) / "eval.json")
         if not evaluation:
             continue
         failed = [e for e in evaluation["episodes"] if e["outcome"] != "goal"]
-        reached = toward = 0
         outcomes = {"time_limit": 0, "ball_out": 0}
-        ends = []
         for e in failed:
-            robot, ball = e["robot"], e["ball"]
-            side = 1.0 if ball[0][0] >= 0 else -1.0
-            goal = (4.5 * side, 0.0)
-            gap = min(math.dist(r, b) for r, b in zip(robot, ball))
-            reached += gap < 0.3
-            start, end = math.dist(ball[0], goal), math.dist(ball[-1], goal)
-            toward += start - end > 0.5
-            ends.append(end)
             outcomes[e["outcome"]] = outcomes.get(e["outcome"], 0) + 1
+        reached = sum(e["closest_to_ball_m"] < 0.3 for e in failed)
+        toward = sum(e["ball_toward_goal_m"] > 0.5 for e in failed)
+        ends = [e["ball_to_goal_end_m"] for e in failed]
         other = len(failed) - outcomes["time_limit"] - outcomes["ball_out"]
         median_end = f"{statistics.median(ends):.2f} m" if ends else "-"
+        standing = [e["standing_share"] for e in failed]
+        median_standing = f"{statistics.median(standing):.0%}" if standing else "-"
         lines.append(
-            f"| {row['name']} | {len(failed)} | {outcomes['time_limit']} / {outcomes['ball_out']} / {other} | {reached} | {toward} | {median_end} |"
+            f"| {row['name']} | {len(failed)} | {outcomes['time_limit']} / {outcomes['ball_out']} / {other} | {reached} | {toward} | {median_end} | {median_standing} |"
         )
     return "\n".join(lines)
 
@@ -149,8 +144,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def choose(rows: list[dict]) -> dict:
-    """Most goals on the selection episodes, then the lowest validation error. Never the
-    test episodes: they are for reporting only."""
+    """Most goals on the held-out training episodes (select.json), then the lowest validation
+    error. Never the test episodes: they are for reporting only."""
     for row in rows:
         selection = read(Path(row["directory"]) / "select.json")
         goals = sum(e["outcome"] == "goal" for e in selection["episodes"]) if selection else 0

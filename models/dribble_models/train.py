@@ -45,7 +45,7 @@ from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
-from .networks import CNN, HCNN, RCNN
+from .networks import CNN, HCNN, RCNN, ModalCNN
 
 SCALE = np.float32(contract.INPUT_SCALE)
 DEFAULT_EPOCHS = {"cnn": 12, "hcnn": 12, "rcnn": 12}
@@ -198,6 +198,20 @@ def rcnn_forward_windows(model: RCNN, top: torch.Tensor, bottom: torch.Tensor, w
 # Training
 
 
+def winner_takes_all_loss(
+    model: ModalCNN, top: torch.Tensor, bottom: torch.Tensor, target: torch.Tensor, relaxation: float = 0.05, choice_weight: float = 0.1
+) -> torch.Tensor:
+    """Relaxed winner-takes-all: each row's squared error is its closest hypothesis's (the
+    others get `relaxation` of theirs, so that none is left untrained), plus the cross-entropy
+    of the choice logits against the index of that closest hypothesis."""
+    hypotheses, logits = model.forward_all(top, bottom)
+    errors = ((hypotheses - target[:, None, :]) ** 2).mean(dim=2)
+    best = errors.argmin(dim=1)
+    winner = errors.gather(1, best[:, None]).squeeze(1)
+    regression = (1.0 - relaxation) * winner.mean() + relaxation * errors.mean()
+    return regression + choice_weight * nn.functional.cross_entropy(logits, best)
+
+
 @dataclass
 class Rows:
     """Training rows of many episodes, concatenated: u8 images, f32 commands, u8 phases."""
@@ -253,15 +267,18 @@ class Training:
         held = int(args.validation_episodes)
         if held >= len(seeds):
             raise DatasetError(f"{dataset.directory} has {len(seeds)} episodes: too few to hold out {held} for validation")
-        chosen = np.random.default_rng([args.seed, 1]).permutation(seeds)
-        self.validation_seeds = sorted(int(s) for s in chosen[:held])
-        self.train_episodes = dataset.subset(sorted(int(s) for s in chosen[held:]))
+        # The last seeds are held out: episodes are already random draws from their seeds, and
+        # a contiguous range is one that `dribble eval --episodes A..B` can replay in closed
+        # loop to choose the shipped model without touching the test episodes.
+        ordered = sorted(int(s) for s in seeds)
+        self.validation_seeds = ordered[len(ordered) - held :]
+        self.train_episodes = dataset.subset(ordered[: len(ordered) - held])
         self.validation_episodes = dataset.subset(self.validation_seeds)
         torch.manual_seed(args.seed)
         self.augment = Augment() if args.augment else None
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
         if self.kind == "cnn":
-            self.model = CNN()
+            self.model = CNN() if args.modes == 1 else ModalCNN(args.modes)
         elif self.kind == "rcnn":
             self.model = RCNN()
         else:
@@ -294,6 +311,8 @@ class Training:
             "window": a.window,
             "lanes": a.lanes,
             "clusters": a.clusters,
+            # Only where it differs from the paper's one output, so that older checkpoints resume.
+            **({"modes": a.modes} if a.modes != 1 else {}),
         }
 
     def save(self, path: Path) -> None:
@@ -365,12 +384,15 @@ class Training:
         for k, index in work:
             network = self.model if self.kind == "cnn" else self.model.experts[k]
             top, bottom, target = self.batch_inputs(index, generator)
-            loss = nn.functional.mse_loss(network(top, bottom), target)
+            if isinstance(network, ModalCNN):
+                loss = winner_takes_all_loss(network, top, bottom, target)
+            else:
+                loss = nn.functional.mse_loss(network(top, bottom), target)
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
             losses.append(loss.item())
-            bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
+            bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}", refresh=False)
             bar.update(1)
         return float(np.mean(losses))
 
@@ -413,7 +435,7 @@ class Training:
             loss.backward()
             self.optimizer.step()
             losses.append(loss.item())
-            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
             bar.update(1)
         return float(np.mean(losses)) if losses else math.nan
 
@@ -477,6 +499,8 @@ def notes_of(args: argparse.Namespace) -> str:
         f"epoch fraction {args.epoch_fraction}",
         f"{args.validation_episodes} validation episodes",
     ]
+    if args.modes != 1:
+        parts.append(f"{args.modes} command hypotheses, winner-takes-all with a learned choice")
     if args.kind == "hcnn":
         parts.append(f"K {args.clusters} (k-means on {args.kmeans_rows} sampled rows)")
     parts.append("augmented" if args.augment else "no augmentation")
@@ -501,11 +525,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice")
-    parser.add_argument("--validation-episodes", type=int, default=10, help="training episodes held out to choose the checkpoint")
+    parser.add_argument("--validation-episodes", type=int, default=10, help="the last N training episodes (by seed) are held out to choose the checkpoint and the shipped model")
     parser.add_argument("--window", type=int, default=100, help="R-CNN: steps per training window")
     parser.add_argument("--lanes", type=int, default=4, help="R-CNN: episodes trained side by side")
     parser.add_argument("--clusters", type=int, default=contract.DEFAULT_CLUSTERS, help="H-CNN: K")
     parser.add_argument("--kmeans-rows", type=int, default=20000, help="H-CNN: rows sampled for k-means")
+    parser.add_argument("--modes", type=int, default=1, help="CNN: command hypotheses with a learned choice among them (beyond the paper; 1 is the paper's CNN)")
     parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")
@@ -516,6 +541,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         args.epochs = DEFAULT_EPOCHS[args.kind]
     if not 0.0 < args.epoch_fraction <= 1.0:
         parser.error("--epoch-fraction must be in (0, 1]")
+    if args.modes < 1 or (args.modes > 1 and args.kind != "cnn"):
+        parser.error("--modes is 1, or more for --kind cnn only")
     return args
 
 

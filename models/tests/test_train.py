@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from dribble_models import dataset as ds
-from dribble_models.networks import RCNN, RCNNStep
+from dribble_models.networks import RCNN, ModalCNN, RCNNStep
 from dribble_models.train import (
     gating_features,
     main,
@@ -21,6 +21,7 @@ from dribble_models.train import (
     rcnn_forward_windows,
     row_errors,
     to_input,
+    winner_takes_all_loss,
 )
 from dribble_models.gating import gating_feature
 
@@ -109,12 +110,12 @@ def run_score(policy: Path, data: Path, tmp_path: Path, *extra: str) -> subproce
     )
 
 
-@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn"])
+@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn", "cnn --modes 2"])
 def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2, 3], 24, rng)
     test = write_dataset(tmp_path / "test", [10000], 24, rng)
-    out = tmp_path / kind
-    argv = ["--kind", kind, "--dataset", str(train), "--test-dataset", str(test), "--out", str(out)]
+    out = tmp_path / kind.split()[0]
+    argv = ["--kind", *kind.split(), "--dataset", str(train), "--test-dataset", str(test), "--out", str(out)]
     argv += ["--epochs", "1", "--validation-episodes", "1", "--batch-size", "16", "--window", "10", "--lanes", "2"]
     argv += ["--checkpoint-dir", str(tmp_path / "checkpoints"), "--threads", "1"]
     assert main(argv) == 0
@@ -157,3 +158,19 @@ def test_data_the_model_was_not_trained_on_is_refused_where_it_must_be(tmp_path,
     (other / "episode_00002.npz").unlink()
     result = run_score(out / "policy.toml", other, tmp_path)
     assert result.returncode != 0 and "episode 2 is listed in dataset.json" in result.stderr, result.stderr
+
+
+def test_a_modal_cnn_answers_the_hypothesis_it_chooses_and_learns_from_the_closest(rng):
+    model = ModalCNN(3).eval()
+    top = to_input(rng.integers(0, 256, (5, 120, 160), dtype=np.uint8))
+    bottom = to_input(rng.integers(0, 256, (5, 60, 80), dtype=np.uint8))
+    with torch.no_grad():
+        hypotheses, logits = model.forward_all(top, bottom)
+        chosen = model(top, bottom)
+        assert torch.allclose(chosen, hypotheses[torch.arange(5), logits.argmax(dim=1)])
+        # A target equal to hypothesis 1: no error from the winner, a little from the others,
+        # and the choice is taught to pick 1.
+        target = hypotheses[:, 1].clone()
+        errors = ((hypotheses - target[:, None, :]) ** 2).mean(dim=2)
+        expected = 0.05 * errors.mean() + 0.1 * torch.nn.functional.cross_entropy(logits, torch.ones(5, dtype=torch.long))
+        assert torch.allclose(winner_takes_all_loss(model, top, bottom, target), expected)

@@ -1,0 +1,41 @@
+import json
+
+from dribble_models import eval_summary
+
+
+def episode(seed, outcome, robot, ball):
+    return {"seed": seed, "outcome": outcome, "duration_s": 12.5, "computed_commands": 375, "failure": None, "robot": robot, "ball": ball}
+
+
+def test_a_summary_keeps_outcomes_and_measures_the_paths(tmp_path):
+    # The ball starts at x = 2 (target goal at +4.5), the robot walks 3 m and pushes it 1 m on.
+    robot = [[-1.0, 0.0], [0.0, 0.0], [2.0, 0.0]]
+    ball = [[2.0, 0.0], [2.0, 0.0], [3.0, 0.0]]
+    trajectories = {"episodes": [episode(7, "time_limit", robot, ball)]}
+    source, target = tmp_path / "paths.json", tmp_path / "summary.json"
+    source.write_text(json.dumps(trajectories))
+    assert eval_summary.main([str(source), str(target)]) == 0
+    (summary,) = json.loads(target.read_text())["episodes"]
+    assert summary["seed"] == 7 and summary["outcome"] == "time_limit"
+    assert summary["walked_m"] == 3.0
+    assert summary["closest_to_ball_m"] == 1.0
+    assert summary["ball_toward_goal_m"] == 1.0
+    assert summary["ball_to_goal_end_m"] == 1.5
+    assert summary["standing_share"] == 0.0  # three samples: less than a second
+    assert "robot" not in summary
+
+
+def test_standing_is_the_share_of_seconds_with_less_than_5_cm_moved(tmp_path):
+    # 10 Hz: two seconds standing at the start, then walking 1 m/s for two seconds.
+    robot = [[0.0, 0.0]] * 20 + [[0.1 * i, 0.0] for i in range(1, 21)]
+    ball = [[2.0, 0.0]] * 40
+    summary = eval_summary.summarise_episode(episode(1, "time_limit", robot, ball))
+    # 30 one-second windows: those ending at samples 10..19 stood (10), the rest walked.
+    assert summary["standing_share"] == round(10 / 30, 3)
+
+
+def test_a_file_that_is_not_an_evaluation_is_refused(tmp_path, capsys):
+    source = tmp_path / "paths.json"
+    source.write_text('{"something": []}')
+    assert eval_summary.main([str(source), str(tmp_path / "out.json")]) == 2
+    assert "not a `dribble eval --trajectories` file" in capsys.readouterr().err
