@@ -296,8 +296,15 @@ fn open_session(
                 Some(name) => command.args(["--domain", name]),
                 None => command.env_remove(Domain::ENV),
             };
-            let link = Iceoryx2Link::connect(&domain, Some(&mut command), timeouts)
-                .with_context(|| format!("controller {}", binary.display()))?;
+            let link = Iceoryx2Link::connect(&domain, Some(&mut command), timeouts).with_context(
+                || {
+                    format!(
+                        "linking to a controller ({}) in iceoryx2 domain {}",
+                        binary.display(),
+                        domain.label()
+                    )
+                },
+            )?;
             if link.owns_controller() {
                 println!(
                     "controller: started {} (pid {}, domain {}, log {})",

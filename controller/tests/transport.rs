@@ -222,9 +222,24 @@ fn a_second_controller_in_a_domain_is_refused() {
     let _first = Iceoryx2ControllerPorts::open(&domain).expect("the first controller");
     let error = Iceoryx2ControllerPorts::open(&domain).expect_err("a second controller");
     assert!(
-        error.to_string().contains("another controller"),
+        error.to_string().contains("another controller runs in it"),
         "says why: {error}"
     );
+}
+
+#[test]
+fn a_second_simulator_in_a_domain_is_refused() {
+    let domain = domain("second-sim");
+    let _first =
+        Iceoryx2SimulatorPorts::open(&domain, "first-simulator").expect("the first simulator");
+    let error =
+        Iceoryx2SimulatorPorts::open(&domain, "second-simulator").expect_err("a second simulator");
+    let said = error.to_string();
+    assert!(
+        said.contains("another simulator runs in it"),
+        "says why: {said}"
+    );
+    assert!(said.contains("--domain"), "says what to do: {said}");
 }
 
 #[test]

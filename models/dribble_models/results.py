@@ -55,18 +55,23 @@ def fmt(value, digits: int = 3) -> str:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| model | training | train error | test error | goals /20 | median time to goal | forward pass |",
-        "|---|---|---|---|---|---|---|",
+        "| model | training | train error | validation error | test error | goals /20 (test) | median time to goal | goals /10 (held-out training episodes) | forward pass |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, train, test, goals, forward in PAPER:
-        lines.append(f"| {name} | paper: Adam, 100 episodes | {train} | {test} | {goals} | - | {forward} |")
+        lines.append(f"| {name} | paper: Adam, 100 episodes | {train} | - | {test} | {goals} | - | - | {forward} |")
     for row in rows:
         t = row["training"]
         how = f"{t['epochs']} epochs (kept {t.get('best_epoch', '-')}), {t.get('wall_time_s', 0) / 60:.0f} min"
         goals = f"{row['goals']}" if "goals" in row else "-"
         seconds = f"{row['time_to_goal_s']:.1f} s" if row.get("time_to_goal_s") else "-"
         forward = f"{row['step_ms']:.2f} ms (tract, 1 core of this machine)" if row["step_ms"] else "-"
-        lines.append(f"| {row['name']} | {how} | {fmt(row['train_error'])} | {fmt(row['test_error'])} | {goals} | {seconds} | {forward} |")
+        selection = read(Path(row["directory"]) / "select.json")
+        held_out = f"{sum(e['outcome'] == 'goal' for e in selection['episodes'])}" if selection else "-"
+        validation = fmt(t.get("validation_error"))
+        lines.append(
+            f"| {row['name']} | {how} | {fmt(row['train_error'])} | {validation} | {fmt(row['test_error'])} | {goals} | {seconds} | {held_out} | {forward} |"
+        )
     return "\n".join(lines)
 
 

@@ -24,6 +24,7 @@ from dribble_models.train import (
     winner_takes_all_loss,
 )
 from dribble_models.gating import gating_feature
+from dribble_models.results import main as results_main
 
 from test_dataset import dribble_binary
 
@@ -131,6 +132,14 @@ def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path,
         for phase, value in trainer[role]["phases"].items():
             if value["error"] is not None:
                 assert abs(robot["phases"][phase]["error"] - value["error"]) < 1e-4, phase
+    # The results table reads the same files scripts/train leaves (no closed loop here).
+    for role in ("train", "test"):
+        (out / f"score_{role}.json").write_text((tmp_path / f"{role}.json").read_text())
+    table = tmp_path / "results.md"
+    assert results_main(["--row", f"tiny={out}", "--out", str(table), "--choose", str(tmp_path / "SHIPPED")]) == 0
+    row = next(line for line in table.read_text().splitlines() if line.startswith("| tiny |"))
+    assert f"{trainer['test']['error']:.3f}" in row
+    assert (tmp_path / "SHIPPED").read_text().strip() == out.name
     # Run again: the checkpoint is complete, so it resumes at the end and exports the same.
     manifest = (out / "policy.toml").read_text()
     assert main(argv) == 0

@@ -72,11 +72,23 @@ fn ball_centroid<const W: usize, const H: usize>(
 fn the_ball_appears_where_the_pinhole_model_puts_it_in_both_cameras() {
     let mut renderer = renderer();
     let robot = FieldPose::new(-2.0, 1.5, 0.2);
+    // Balls on the ground where the configured cameras (head pitch included) look, well
+    // inside each image: whatever the head pitch, the whole ball is in view.
+    let on_ground_at = |position: CameraPosition, u: f32, v: f32| {
+        let camera = camera(position, robot);
+        let mount = *CameraGeometry::nao().mount(position);
+        let pixel = Pixel {
+            u: u * mount.width as f32,
+            v: v * mount.height as f32,
+        };
+        let ground = camera.ground_point(pixel).expect("the ground is in view");
+        (position, ground.extend(0.05))
+    };
     let cases = [
-        (CameraPosition::Top, Vec3::new(-0.9, 1.9, 0.05)),
-        (CameraPosition::Top, Vec3::new(-0.3, 1.5, 0.05)),
-        (CameraPosition::Bottom, Vec3::new(-1.45, 1.6, 0.05)),
-        (CameraPosition::Bottom, Vec3::new(-1.55, 1.45, 0.05)),
+        on_ground_at(CameraPosition::Top, 0.35, 0.55),
+        on_ground_at(CameraPosition::Top, 0.6, 0.75),
+        on_ground_at(CameraPosition::Bottom, 0.4, 0.5),
+        on_ground_at(CameraPosition::Bottom, 0.65, 0.35),
     ];
     for (position, ball) in cases {
         let camera = camera(position, robot);
@@ -171,8 +183,10 @@ fn top_view_without_ball(pose: FieldPose) -> (CameraModel, Box<TopFrame>) {
 }
 
 #[test]
-fn the_top_camera_sees_the_goal_from_the_centre_spot() {
-    let (camera, frame) = top_view_without_ball(FieldPose::new(0.0, 0.0, 0.0));
+fn the_top_camera_sees_the_goal_from_the_own_half() {
+    // 8 m from the goal line: far enough that the crossbar is in view with the head pitched
+    // down as configured (about 3 deg of the top image lie above the horizon at 20 deg).
+    let (camera, frame) = top_view_without_ball(FieldPose::new(-3.5, 0.0, 0.0));
     let luma = |point: Vec3| {
         let pixel = camera.project(point).expect("ahead");
         assert!(camera.contains(pixel), "{point} is outside the image");

@@ -24,7 +24,7 @@ use core::time::Duration;
 use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
@@ -277,15 +277,24 @@ fn subscriber<T: core::fmt::Debug + ZeroCopySend + 'static>(
         .map_err(|e| TransportError::ipc(name, e))
 }
 
+/// A publisher on `name` for a process in `role` ("simulator" or "controller"), which says
+/// so when the service's publishers are taken.
 fn publisher<T: core::fmt::Debug + ZeroCopySend + 'static>(
     factory: &PubSubFactory<Ipc, T, ()>,
     name: &'static str,
+    role: &'static str,
 ) -> Result<Publisher<Ipc, T, ()>, TransportError> {
     factory
         .publisher_builder()
         .max_loaned_samples(1)
         .create()
-        .map_err(|e| TransportError::ipc(name, e))
+        .map_err(|e| match e {
+            PublisherCreateError::ExceedsMaxSupportedPublishers => TransportError::DomainBusy {
+                service: name,
+                role,
+            },
+            e => TransportError::ipc(name, e),
+        })
 }
 
 fn listener(
@@ -409,13 +418,7 @@ pub struct Iceoryx2ControllerPorts {
 impl Iceoryx2ControllerPorts {
     pub fn open(domain: &Domain) -> Result<Self, TransportError> {
         let services = Services::open(domain, CONTROLLER_NODE)?;
-        let commands = publisher(&services.commands, COMMAND_SERVICE).map_err(|e| match e {
-            TransportError::Ipc { detail, .. } => TransportError::Ipc {
-                what: "cannot publish commands (is another controller running in this domain?)",
-                detail,
-            },
-            other => other,
-        })?;
+        let commands = publisher(&services.commands, COMMAND_SERVICE, "controller")?;
         Ok(Self {
             top: subscriber(&services.top, TOP_CAMERA_SERVICE)?,
             bottom: subscriber(&services.bottom, BOTTOM_CAMERA_SERVICE)?,
@@ -480,9 +483,9 @@ impl Iceoryx2SimulatorPorts {
     pub fn open(domain: &Domain, node_name: &str) -> Result<Self, TransportError> {
         let services = Services::open(domain, node_name)?;
         Ok(Self {
-            top: publisher(&services.top, TOP_CAMERA_SERVICE)?,
-            bottom: publisher(&services.bottom, BOTTOM_CAMERA_SERVICE)?,
-            ticks: publisher(&services.ticks, TICK_SERVICE)?,
+            top: publisher(&services.top, TOP_CAMERA_SERVICE, "simulator")?,
+            bottom: publisher(&services.bottom, BOTTOM_CAMERA_SERVICE, "simulator")?,
+            ticks: publisher(&services.ticks, TICK_SERVICE, "simulator")?,
             tick_events: notifier(&services.tick_events, TICK_SERVICE)?,
             commands: subscriber(&services.commands, COMMAND_SERVICE)?,
             command_events: listener(&services.command_events, COMMAND_SERVICE)?,

@@ -32,6 +32,16 @@ pub enum TransportError {
     /// The other side of an in-process transport is gone.
     #[error("the {0} side of the in-process transport is gone")]
     Disconnected(&'static str),
+    /// A service that takes one publisher already has it: another `role` (simulator or
+    /// controller) runs in the same iceoryx2 domain.
+    #[error(
+        "{service} already has its publisher in this iceoryx2 domain: another {role} runs in \
+         it; give each run its own domain (--domain NAME or DRIBBLE_DOMAIN)"
+    )]
+    DomainBusy {
+        service: &'static str,
+        role: &'static str,
+    },
 }
 
 impl TransportError {
