@@ -83,6 +83,7 @@ pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
         .map(|&p| CameraGeometry::nao().with_head_pitch(p))
         .collect::<Result<Vec<_>, _>>()?;
     let mut visibility = vec![[VisibilityShares::default(); 4]; pitches.len()];
+    let mut driven = PolicyDriven::default();
     for entry in &index.episodes {
         *outcomes.entry(entry.outcome.name()).or_default() += 1;
         let arrays = read_npz(&args.dataset.join(&entry.file))?;
@@ -94,6 +95,11 @@ pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
         check_shapes(&arrays, entry.rows, &entry.file)?;
         let command = array("command")?.as_f32();
         let phase = &array("phase")?.data;
+        if let (Some(policy), Some(executed)) =
+            (arrays.get("policy_command"), arrays.get("expert_executed"))
+        {
+            driven.add(&command, &policy.as_f32(), &executed.data, phase);
+        }
         let poses = array("robot_pose")?.as_f32();
         let balls = array("ball")?.as_f32();
         let target_side = EpisodeSetup::from_seed(entry.seed).target_side;
@@ -152,6 +158,10 @@ pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
         .map(|(p, n)| format!("{} {:.1}%", p.name(), 100.0 * n as f64 / rows.max(1) as f64))
         .collect();
     println!("phases: {}", phase_list.join(", "));
+    if let Some(driver) = &index.driver {
+        println!("driven by: {driver}");
+        driven.print();
+    }
     print_visibility(pitch, recorded_pitch, &visibility[0]);
     if args.head_pitch_sweep {
         print_sweep(&pitches, &visibility);
@@ -161,6 +171,55 @@ pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
     draw_contact_sheet(&samples, &args.thumbnails)?;
     println!("thumbnails: {}", args.thumbnails.display());
     Ok(())
+}
+
+/// A policy-driven dataset's rows: how far the policy's commands were from the expert's
+/// labels (the paper's metric on the states the policy itself visits), per phase, and how
+/// often the expert's command was executed.
+#[derive(Debug, Default)]
+struct PolicyDriven {
+    distance: [f64; 4],
+    rows: [u64; 4],
+    executed: u64,
+}
+
+impl PolicyDriven {
+    fn add(&mut self, labels: &[f32], policy: &[f32], executed: &[u8], phases: &[u8]) {
+        let rows = labels.chunks_exact(3).zip(policy.chunks_exact(3));
+        for ((label, own), (&phase, &by_expert)) in rows.zip(phases.iter().zip(executed)) {
+            let p = usize::from(phase).min(3);
+            let squared: f32 = label.iter().zip(own).map(|(a, b)| (a - b) * (a - b)).sum();
+            self.distance[p] += f64::from(squared.sqrt());
+            self.rows[p] += 1;
+            self.executed += u64::from(by_expert);
+        }
+    }
+
+    fn print(&self) {
+        let rows: u64 = self.rows.iter().sum();
+        if rows == 0 {
+            return;
+        }
+        let mean = |d: f64, n: u64| if n == 0 { f64::NAN } else { d / n as f64 };
+        let phases: Vec<String> = Phase::ALL
+            .iter()
+            .enumerate()
+            .filter(|(p, _)| self.rows[*p] > 0)
+            .map(|(p, phase)| {
+                format!(
+                    "{} {:.3}",
+                    phase.name(),
+                    mean(self.distance[p], self.rows[p])
+                )
+            })
+            .collect();
+        println!(
+            "policy vs the expert's labels on the visited states: error {:.3} ({}); the expert's command executed in {:.1}% of rows",
+            mean(self.distance.iter().sum(), rows),
+            phases.join(", "),
+            100.0 * self.executed as f64 / rows as f64
+        );
+    }
 }
 
 /// The head pitch the dataset was recorded with; 0 for datasets from before the head could

@@ -1,6 +1,7 @@
 //! `dribble`: the project's command-line tool: look at the simulated cameras, inspect raw
 //! frames. Recording and evaluation (`record`, `eval`, `inspect`) come with the expert.
 
+mod controller_session;
 mod episodes;
 mod eval_command;
 mod inspect_command;
@@ -33,8 +34,10 @@ enum Command {
     /// episode, the outcome, the time and the distance walked; then the goal count, the
     /// controller's latency, and writes a trajectory plot.
     Eval(eval_command::EvalArgs),
-    /// Records the expert's demonstrations: the cameras are rendered, every computed command
-    /// is stored with the thumbnails it came from, one .npz per episode plus dataset.json.
+    /// Records demonstrations: the cameras are rendered, every computed command is stored
+    /// with the thumbnails it came from, one .npz per episode plus dataset.json. The expert
+    /// drives, or a learned policy drives and the expert labels every state it visits
+    /// (DAgger).
     Record(record_command::RecordArgs),
     /// Checks a recorded dataset and summarises it: counts, outcomes, phases, a histogram
     /// picture of the commands and phases, and a contact sheet of sample thumbnails.

@@ -5,17 +5,26 @@ use std::fs;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Context, ensure};
-use clap::Args;
+use anyhow::{Context, bail, ensure};
+use clap::{Args, ValueEnum};
+use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_sim::dataset::{DatasetIndex, EpisodeEntry, EpisodeRecording, episode_file};
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::render::Renderer;
-use dribble_sim::runner::{Driver, EpisodeConfig, run_episode};
+use dribble_sim::runner::{Driver, EpisodeConfig, ExpertLabels, run_episode};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
+
+/// Who labels the states a learned policy visits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Labeller {
+    /// The scripted expert, reading ground truth.
+    Expert,
+}
 
 #[derive(Debug, Args)]
 pub struct RecordArgs {
@@ -29,6 +38,19 @@ pub struct RecordArgs {
     /// Time limit per episode, simulated seconds.
     #[arg(long, default_value_t = 90.0)]
     time_limit: f32,
+    /// `expert` (it drives with ground truth), or the path of a policy's `policy.toml`: it
+    /// drives through its controller and `--label-with` labels the states it visits.
+    #[arg(long, default_value = "expert")]
+    driver: String,
+    /// Who labels a policy-driven episode's rows (needed with a policy `--driver`).
+    #[arg(long, value_enum)]
+    label_with: Option<Labeller>,
+    /// Probability, per computed command, that the labeller's command is executed instead
+    /// of the policy's (DAgger's β; drawn from a generator seeded by the episode).
+    #[arg(long, default_value_t = 0.0)]
+    beta: f64,
+    #[command(flatten)]
+    controller: ControllerOptions,
 }
 
 pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
@@ -46,12 +68,28 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         "time_limit_s": config.time_limit_s,
     });
     let expert = serde_json::json!(format!("{expert_config:?}"));
+    let policy = policy_driver(args)?;
+    let driver = policy.as_ref().map(|(path, manifest)| {
+        serde_json::json!({
+            "policy": path.display().to_string(),
+            "kind": manifest.kind.to_string(),
+            "trained_on": manifest.training.dataset,
+            "dataset_hash": manifest.training.dataset_hash,
+            "label_with": "expert",
+            "beta": args.beta,
+            "mixing": "per computed command, the expert's command is executed with probability \
+                       beta (held until the next computed command); draws seeded by the episode",
+        })
+    });
     let mut index = match DatasetIndex::load(&args.out)? {
         Some(index) => {
             // Resuming: the new episodes must come from the same simulator and expert.
             let mut differences = Vec::new();
             config_differences("", &index.simulator, &simulator, &mut differences);
             config_differences("expert", &index.expert, &expert, &mut differences);
+            let recorded_driver = index.driver.clone().unwrap_or_default();
+            let driver_now = driver.clone().unwrap_or_default();
+            config_differences("driver", &recorded_driver, &driver_now, &mut differences);
             ensure!(
                 differences.is_empty(),
                 "{} was recorded with another simulator, camera or expert configuration \
@@ -68,6 +106,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             expert,
             episodes: Vec::new(),
             content_hash: None,
+            driver,
         },
     };
     let done = |seed: u64| {
@@ -100,19 +139,50 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     );
     let started = Instant::now();
     let (mut simulated, mut bytes_written) = (0.0f64, 0u64);
+    let mut session: Option<ControllerSession> = None;
+    if policy.is_some() && !todo.is_empty() {
+        args.controller.start_log()?;
+    }
     for seed in todo.iter().copied() {
         progress.set_message(format!("seed {seed}"));
         let setup = EpisodeSetup::from_seed(seed);
         let mut recording = EpisodeRecording::default();
         let expert = Expert::new(expert_config, FieldGeometry::SPL);
+        let driver = match &policy {
+            None => Driver::Expert(expert),
+            Some((path, _)) => {
+                if session.is_none() {
+                    session = Some(progress.suspend(|| {
+                        ControllerSession::open(&args.controller, path, config.control)
+                    })?);
+                }
+                let link = session
+                    .as_mut()
+                    .map(ControllerSession::link)
+                    .context("no controller session")?;
+                let labels = ExpertLabels::new(expert, args.beta, seed);
+                Driver::LabelledController(link, Box::new(labels))
+            }
+        };
         let result = run_episode(
             &setup,
             &config,
-            Driver::Expert(expert),
+            driver,
             Some(&mut renderer),
             Some(&mut recording),
         )
         .with_context(|| format!("episode {seed}"))?;
+        if let Some(failure) = &result.failure {
+            // Nothing of a failed episode is kept; the episodes before it are.
+            if let Some(session) = session.take() {
+                session.finish(&args.controller);
+            }
+            bail!(
+                "episode {seed} failed: {failure}; the episodes before it are kept, and running \
+                 the same command again resumes with it (the controller's log: {})",
+                args.controller.controller_log.display()
+            );
+        }
         let file = episode_file(seed);
         let (bytes, sha256) = recording.write(&args.out.join(&file))?;
         index.insert(EpisodeEntry {
@@ -127,9 +197,18 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         index.save(&args.out)?;
         simulated += f64::from(result.duration_s);
         bytes_written += bytes;
+        let executed = if policy.is_some() {
+            format!(
+                ", expert's command executed {} of {} times",
+                result.expert_executed,
+                recording.rows()
+            )
+        } else {
+            String::new()
+        };
         progress.suspend(|| {
             println!(
-                "episode {seed}: {} after {:.1} s, {} rows, {:.1} MB",
+                "episode {seed}: {} after {:.1} s, {} rows, {:.1} MB{executed}",
                 result.outcome.name(),
                 result.duration_s,
                 recording.rows(),
@@ -139,6 +218,9 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         progress.inc(1);
     }
     progress.finish_and_clear();
+    if let Some(session) = session.take() {
+        session.finish(&args.controller);
+    }
     let wall = started.elapsed().as_secs_f64();
     if !todo.is_empty() {
         println!(
@@ -155,7 +237,10 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         .iter()
         .filter(|e| e.outcome == dribble_sim::dataset::Outcome::Goal)
         .count();
-    index.save(&args.out)?;
+    // Saved only when something changed, so that a finished dataset's index keeps its time.
+    if !todo.is_empty() || index.content_hash != index.compute_content_hash() {
+        index.save(&args.out)?;
+    }
     println!(
         "{}: {} episodes, {} goals, {} rows, content hash {}",
         args.out.join(DatasetIndex::FILE).display(),
@@ -168,6 +253,40 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             .unwrap_or("(incomplete)")
     );
     Ok(())
+}
+
+/// The policy that drives, when `--driver` names one, with its manifest; checks the flags
+/// that go with it.
+fn policy_driver(args: &RecordArgs) -> anyhow::Result<Option<(PathBuf, PolicyManifest)>> {
+    if !(0.0..=1.0).contains(&args.beta) {
+        bail!("--beta {} is not a probability (0 to 1)", args.beta);
+    }
+    if args.driver == "expert" {
+        if args.label_with.is_some() || args.beta != 0.0 {
+            bail!(
+                "--label-with and --beta go with a policy --driver; the expert labels its own \
+                 demonstrations"
+            );
+        }
+        return Ok(None);
+    }
+    if args.label_with.is_none() {
+        bail!(
+            "a policy --driver needs --label-with expert: the rows must hold the expert's \
+             commands for the states the policy visits"
+        );
+    }
+    let path = PathBuf::from(&args.driver);
+    let manifest = PolicyManifest::load(&path)?;
+    println!(
+        "driver: {} policy {} (trained on {:?}), labelled by the expert, beta {}, transport {}",
+        manifest.kind,
+        path.display(),
+        manifest.training.dataset,
+        args.beta,
+        args.controller.describe()
+    );
+    Ok(Some((path, manifest)))
 }
 
 /// Where two recorded configurations differ, one `path: recorded A, now B` per leaf.

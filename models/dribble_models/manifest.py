@@ -22,6 +22,8 @@ class TrainingRecord:
     epochs: int
     dataset_hash: str | None = None
     test_dataset_hash: str | None = None
+    # (name, content hash) of every dataset trained on besides `dataset` (DAgger's rounds).
+    added_datasets: list[tuple[str, str]] | None = None
     best_epoch: int | None = None
     seed: int | None = None
     validation_seeds: list[int] | None = None
@@ -96,6 +98,9 @@ class Manifest:
         for key in ("best_epoch", "seed"):
             if getattr(t, key) is not None:
                 lines.append(f"{key} = {int(getattr(t, key))}")
+        if t.added_datasets:
+            entries = ", ".join(f"{{ name = {_string(n)}, hash = {_string(h)} }}" for n, h in t.added_datasets)
+            lines.append(f"added_datasets = [{entries}]")
         if t.validation_seeds is not None:
             lines.append(f"validation_seeds = [{', '.join(str(int(s)) for s in t.validation_seeds)}]")
         for key in ("wall_time_s", "train_error", "validation_error", "test_error"):

@@ -19,6 +19,10 @@ demonstrations and exports a model directory the controller loads.
   carried from one window to the next of the same episode and zero at an episode's start,
   as the controller carries it (truncated back-propagation through time). Evaluation steps
   every episode from a zero state.
+- DAgger: `--add-dataset DIR` (repeatable) adds every episode of a policy-driven dataset
+  (`dribble record --driver POLICY --label-with expert`: the expert's labels for the states
+  the policy visited) to the training rows; validation stays on `--dataset`'s held-out
+  episodes. `--init-from CHECKPOINT` starts from another run's kept weights.
 - Resumable: a checkpoint after every epoch (`--checkpoint-dir`, under ~/.cache/dribble by
   default); running the same command again continues where it stopped. Every random choice
   is seeded (`--seed`), per epoch, so a resumed run is the run it would have been.
@@ -27,6 +31,7 @@ demonstrations and exports a model directory the controller loads.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import os
@@ -259,10 +264,11 @@ def window_schedule(episodes: list[Episode], lanes: list[list[int]], window: int
 class Training:
     """One model's training run: data, model, optimiser, checkpoints."""
 
-    def __init__(self, args: argparse.Namespace, dataset: Dataset):
+    def __init__(self, args: argparse.Namespace, dataset: Dataset, added: list[Dataset] | None = None):
         self.args = args
         self.kind = args.kind
         self.dataset = dataset
+        self.added = added or []
         seeds = np.array(dataset.seeds())
         held = int(args.validation_episodes)
         if held >= len(seeds):
@@ -274,6 +280,11 @@ class Training:
         self.validation_seeds = ordered[len(ordered) - held :]
         self.train_episodes = dataset.subset(ordered[: len(ordered) - held])
         self.validation_episodes = dataset.subset(self.validation_seeds)
+        for extra in self.added:
+            shared = sorted(set(extra.seeds()) & set(self.validation_seeds))
+            if shared:
+                raise DatasetError(f"{extra.directory} holds the validation episodes {shared} of {dataset.directory}: they would be trained on")
+            self.train_episodes = self.train_episodes + extra.episodes
         torch.manual_seed(args.seed)
         self.augment = Augment() if args.augment else None
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
@@ -287,11 +298,29 @@ class Training:
             centroids = fit_centroids(features[sample], args.clusters, seed=args.seed)
             self.model = HCNN(centroids)
             self.clusters = nearest(features, self.model.centroids)
+        if args.init_from is not None:
+            self.start_from(args.init_from)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=args.lr)
         self.epoch = 0
         self.history: list[dict] = []
         self.best = {"error": math.inf, "epoch": 0, "state": None}
         self.wall_s = 0.0
+
+    def start_from(self, path: Path) -> None:
+        """Takes the kept (best) weights of another run's checkpoint as the start."""
+        if not Path(path).is_file():
+            raise DatasetError(f"--init-from {path}: no such checkpoint")
+        state = torch.load(path, weights_only=False)
+        if state["identity"]["kind"] != self.kind or state["identity"].get("modes", 1) != self.args.modes:
+            raise DatasetError(
+                f"--init-from {path} is a {state['identity']['kind']} with {state['identity'].get('modes', 1)} command "
+                f"hypotheses; this run trains a {self.kind} with {self.args.modes}"
+            )
+        if state["centroids"] is not None:
+            # The H-CNN keeps the gate it was trained with.
+            self.model = HCNN(state["centroids"])
+            self.clusters = nearest(gating_features(self.rows.top, self.rows.bottom), self.model.centroids)
+        self.model.load_state_dict(state["best"]["state"] if state["best"]["state"] is not None else state["model"])
 
     # -- checkpoints ---------------------------------------------------------------------
 
@@ -313,6 +342,8 @@ class Training:
             "clusters": a.clusters,
             # Only where it differs from the paper's one output, so that older checkpoints resume.
             **({"modes": a.modes} if a.modes != 1 else {}),
+            **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
+            **({"init_from": file_sha256(a.init_from)} if a.init_from is not None else {}),
         }
 
     def save(self, path: Path) -> None:
@@ -492,6 +523,10 @@ def plot_history(history: list[dict], path: Path, title: str) -> None:
     plt.close(figure)
 
 
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def notes_of(args: argparse.Namespace) -> str:
     parts = [
         f"Adam lr {args.lr}",
@@ -506,6 +541,10 @@ def notes_of(args: argparse.Namespace) -> str:
     parts.append("augmented" if args.augment else "no augmentation")
     if args.balance_phases:
         parts.append("phase-balanced sampling")
+    if args.add_dataset:
+        parts.append(f"plus every episode of {', '.join(d.name for d in args.add_dataset)} (expert-labelled, policy-driven)")
+    if args.init_from is not None:
+        parts.append(f"started from the kept weights of {args.init_from} (sha256 {file_sha256(args.init_from)[:12]})")
     parts.append("train_error over every episode of the training dataset (validation ones too)")
     return "; ".join(parts)
 
@@ -519,6 +558,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--kind", choices=contract.KINDS, required=True, help="network: the paper's CNN, H-CNN or R-CNN")
     parser.add_argument("--dataset", type=Path, required=True, help="training data: a `dribble record` directory")
     parser.add_argument("--out", type=Path, required=True, help="model directory to write (policy.toml, ONNX, loss curve, scores)")
+    parser.add_argument("--add-dataset", type=Path, action="append", default=[], help="more training data, every episode of it (DAgger's policy-driven, expert-labelled rounds); repeatable")
+    parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote) instead of random ones")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")
@@ -551,13 +592,17 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     try:
         dataset = load(args.dataset)
+        added = [load(directory) for directory in args.add_dataset]
         if args.test_dataset:
             # Checked now, read only after training: test data never reaches training.
             test_seeds = {int(e["seed"]) for e in read_index(args.test_dataset)["episodes"]}
-            if test_seeds & set(dataset.seeds()):
-                raise DatasetError(f"{args.test_dataset} shares episodes {sorted(test_seeds & set(dataset.seeds()))} with {args.dataset}")
+            for training_data in (dataset, *added):
+                if test_seeds & set(training_data.seeds()):
+                    raise DatasetError(f"{args.test_dataset} shares episodes {sorted(test_seeds & set(training_data.seeds()))} with {training_data.directory}")
         print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}", file=sys.stderr)
-        training = Training(args, dataset)
+        for extra in added:
+            print(f"  plus {extra.directory}: {len(extra.episodes)} episodes, {extra.rows} rows, hash {extra.content_hash[:12]}", file=sys.stderr)
+        training = Training(args, dataset, added)
     except DatasetError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -583,6 +628,7 @@ def main(argv: list[str] | None = None) -> int:
         epochs=training.epoch,
         dataset_hash=dataset.content_hash,
         test_dataset_hash=test.content_hash if test else None,
+        added_datasets=[(d.directory.name, d.content_hash) for d in added] or None,
         best_epoch=training.best["epoch"],
         seed=args.seed,
         validation_seeds=training.validation_seeds,

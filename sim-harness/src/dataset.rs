@@ -49,6 +49,18 @@ pub struct EpisodeRecording {
     ball: Vec<f32>,
     time_s: Vec<f64>,
     phase: Vec<u8>,
+    /// Rows of a policy-driven episode only: what the policy commanded, and whether the
+    /// expert's command was executed instead.
+    policy_command: Vec<f32>,
+    expert_executed: Vec<u8>,
+}
+
+/// What a learned policy commanded in a row whose `command` is the expert's label.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PolicyCommand {
+    pub speed: SpeedCommand,
+    /// The expert's command was executed instead of this one (DAgger's β draw).
+    pub expert_executed: bool,
 }
 
 /// One computed command and what it was computed from.
@@ -61,6 +73,9 @@ pub struct Row<'a> {
     pub ball: glam::Vec2,
     pub time_s: f64,
     pub phase: Phase,
+    /// In a policy-driven (labelled) episode: the policy's own command; `command` is then
+    /// the expert's label for this state. Every row of an episode has one, or none does.
+    pub policy_command: Option<PolicyCommand>,
 }
 
 impl EpisodeRecording {
@@ -73,19 +88,31 @@ impl EpisodeRecording {
         self.ball.extend_from_slice(&[row.ball.x, row.ball.y]);
         self.time_s.push(row.time_s);
         self.phase.push(row.phase as u8);
+        if let Some(policy) = row.policy_command {
+            self.policy_command
+                .extend_from_slice(&policy.speed.as_array());
+            self.expert_executed.push(u8::from(policy.expert_executed));
+        }
     }
 
     pub fn rows(&self) -> usize {
         self.time_s.len()
     }
 
+    /// Whether the rows carry a policy's own commands (a labelled, policy-driven episode).
+    pub fn is_policy_driven(&self) -> bool {
+        !self.expert_executed.is_empty()
+    }
+
     /// The episode as `.npz` bytes: `top` u8[T,120,160], `bottom` u8[T,60,80], `command`
-    /// f32[T,3], `robot_pose` f32[T,3], `ball` f32[T,2], `time_s` f64[T], `phase` u8[T].
+    /// f32[T,3], `robot_pose` f32[T,3], `ball` f32[T,2], `time_s` f64[T], `phase` u8[T];
+    /// a policy-driven episode adds `policy_command` f32[T,3] and `expert_executed` u8[T]
+    /// (`command` is then the expert's label).
     pub fn to_npz(&self) -> Vec<u8> {
         let t = self.rows();
         let f32_bytes = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
         let f64_bytes = |v: &[f64]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
-        let arrays: [(&str, &str, Vec<usize>, Vec<u8>); 7] = [
+        let mut arrays: Vec<(&str, &str, Vec<usize>, Vec<u8>)> = vec![
             ("top", "|u1", vec![t, 120, 160], self.top.clone()),
             ("bottom", "|u1", vec![t, 60, 80], self.bottom.clone()),
             ("command", "<f4", vec![t, 3], f32_bytes(&self.command)),
@@ -94,6 +121,20 @@ impl EpisodeRecording {
             ("time_s", "<f8", vec![t], f64_bytes(&self.time_s)),
             ("phase", "|u1", vec![t], self.phase.clone()),
         ];
+        if self.is_policy_driven() {
+            arrays.push((
+                "policy_command",
+                "<f4",
+                vec![t, 3],
+                f32_bytes(&self.policy_command),
+            ));
+            arrays.push((
+                "expert_executed",
+                "|u1",
+                vec![t],
+                self.expert_executed.clone(),
+            ));
+        }
         let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
         let options = zip::write::SimpleFileOptions::default()
             .compression_method(zip::CompressionMethod::Deflated)
@@ -303,6 +344,10 @@ pub struct DatasetIndex {
     /// SHA-256 over the episodes' hashes (module documentation); kept current by `save`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub content_hash: Option<String>,
+    /// Who drove, when not the expert: the policy, its identity, who labelled the rows and
+    /// the mixing rule (DAgger). Absent for the expert's demonstrations.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub driver: Option<serde_json::Value>,
 }
 
 impl DatasetIndex {
@@ -449,6 +494,7 @@ mod tests {
                 ball: glam::Vec2::new(3.0, -1.0),
                 time_s: f64::from(i) / 30.0,
                 phase: Phase::Dribble,
+                policy_command: None,
             });
         }
         let directory = std::env::temp_dir().join(format!("dribble-npz-{}", std::process::id()));

@@ -4,6 +4,10 @@
 //! controller's own `ControlLoop`, so a command is computed exactly when the robot would
 //! compute one (both cameras new) and repeated otherwise, from thumbnails made by the
 //! robot's own code.
+//!
+//! A linked controller can also be followed by the expert ([`ExpertLabels`]): the learned
+//! policy drives, and every state it computes a command in is recorded with the expert's
+//! command for that state (DAgger's labels).
 
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -15,13 +19,16 @@ use dribble_controller::{
     PolicyError, PolicyInput, PolicyOutput, TopFrame,
 };
 use glam::Vec2;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
-use dribble_controller::MotionCommand;
+use dribble_controller::thumbnail::downscale;
 use dribble_controller::transport::LockStepTick;
+use dribble_controller::{BottomThumbnail, MotionCommand, SpeedCommand, TopThumbnail};
 
 use crate::camera_geometry::CameraGeometry;
 use crate::controller_link::{ControllerLink, LinkError};
-use crate::dataset::{EpisodeRecording, Outcome, Row};
+use crate::dataset::{EpisodeRecording, Outcome, PolicyCommand, Row};
 use crate::episode::EpisodeSetup;
 use crate::expert::{Expert, GroundTruth, Phase};
 use crate::render::{RenderError, Renderer};
@@ -69,6 +76,8 @@ pub struct EpisodeResult {
     pub tick_times: TickStats,
     /// Why the episode failed, when the outcome is [`Outcome::ControllerLost`].
     pub failure: Option<String>,
+    /// Commands of a labelled episode that the expert's command replaced (β's draws).
+    pub expert_executed: u64,
 }
 
 /// Shares the truth with the expert inside the control loop, and its phase back.
@@ -113,6 +122,53 @@ pub enum Driver<'a> {
     /// A controller of its own (a process or a thread) that gets the rendered frames and
     /// a tick per motion cycle, and answers with commands.
     Controller(&'a mut dyn ControllerLink),
+    /// A controller as above, followed by the expert: each computed command's state is
+    /// labelled with the expert's command, which is executed instead with probability β.
+    LabelledController(&'a mut dyn ControllerLink, Box<ExpertLabels>),
+}
+
+/// The expert following a learned policy (DAgger, Ross et al. 2011): it decides in every
+/// state the policy computes a command in, exactly as it would when driving, and with
+/// probability `beta` its command is the one executed (and held until the next computed
+/// command). The draws come from a generator seeded by the episode, so an episode
+/// replays the same.
+#[derive(Clone, Debug)]
+pub struct ExpertLabels {
+    expert: Expert,
+    beta: f64,
+    draws: ChaCha8Rng,
+}
+
+impl ExpertLabels {
+    /// Stream of the draws, apart from the episode placement's own stream.
+    const DRAW_STREAM: u64 = 0xDA66_E500;
+
+    /// `beta` is the probability, per computed command, that the expert's command is
+    /// executed instead of the policy's; it is clamped to [0, 1].
+    pub fn new(expert: Expert, beta: f64, episode_seed: u64) -> Self {
+        let mut draws = ChaCha8Rng::seed_from_u64(episode_seed);
+        draws.set_stream(Self::DRAW_STREAM);
+        Self {
+            expert,
+            beta: if beta.is_nan() {
+                0.0
+            } else {
+                beta.clamp(0.0, 1.0)
+            },
+            draws,
+        }
+    }
+
+    pub fn beta(&self) -> f64 {
+        self.beta
+    }
+
+    /// The expert's command and phase in `truth`, and whether it is the one executed.
+    fn label(&mut self, truth: &GroundTruth) -> (SpeedCommand, Phase, bool) {
+        let (command, phase) = self.expert.decide(truth);
+        let executed = self.beta > 0.0 && self.draws.random_bool(self.beta);
+        (command, phase, executed)
+    }
 }
 
 impl std::fmt::Debug for Driver<'_> {
@@ -121,12 +177,16 @@ impl std::fmt::Debug for Driver<'_> {
             Self::Expert(expert) => f.debug_tuple("Expert").field(expert).finish(),
             Self::Policy(_) => f.write_str("Policy"),
             Self::Controller(_) => f.write_str("Controller"),
+            Self::LabelledController(_, labels) => {
+                f.debug_tuple("LabelledController").field(labels).finish()
+            }
         }
     }
 }
 
 /// Runs one episode. Images are rendered when a renderer is given (a policy needs one);
-/// rows are recorded when a recording is given.
+/// rows are recorded when a recording is given (for a linked controller, only when it is
+/// labelled: the rows need the expert's commands).
 pub fn run_episode(
     setup: &EpisodeSetup,
     config: &EpisodeConfig,
@@ -154,7 +214,19 @@ pub fn run_episode(
         ),
         Driver::Policy(policy) => (false, Box::new(policy)),
         Driver::Controller(link) => {
-            return run_linked(setup, config, link, renderer);
+            return run_linked(setup, config, link, None, renderer);
+        }
+        Driver::LabelledController(link, labels) => {
+            let labelling = Labelling {
+                labels: *labels,
+                recording,
+                held: None,
+                thumbnails: (
+                    Box::new(TopThumbnail::black()),
+                    Box::new(BottomThumbnail::black()),
+                ),
+            };
+            return run_linked(setup, config, link, Some(labelling), renderer);
         }
     };
     let clock = ManualClock::default();
@@ -214,6 +286,7 @@ pub fn run_episode(
                         } else {
                             Phase::Search
                         },
+                        policy_command: None,
                     });
                 }
             }
@@ -222,14 +295,14 @@ pub fn run_episode(
             break outcome;
         }
     };
-    Ok(trace.finish(
-        &simulation,
-        setup,
+    let end = Ending {
         outcome,
-        control.counters().new_commands,
+        computed_commands: control.counters().new_commands,
         tick_times,
-        None,
-    ))
+        failure: None,
+        expert_executed: 0,
+    };
+    Ok(trace.finish(&simulation, setup, end))
 }
 
 /// Takes the frame of `camera` that is due now: rendered if there is a renderer, stamped
@@ -276,6 +349,15 @@ fn episode_end(simulation: &Simulation, setup: &EpisodeSetup, limit_steps: u64) 
     }
 }
 
+/// How an episode ended, and what was counted on the way.
+struct Ending {
+    outcome: Outcome,
+    computed_commands: u64,
+    tick_times: TickStats,
+    failure: Option<String>,
+    expert_executed: u64,
+}
+
 /// The robot's and the ball's paths and the distance walked, step by step.
 struct Trace {
     robot_path: Vec<Vec2>,
@@ -314,11 +396,15 @@ impl Trace {
         mut self,
         simulation: &Simulation,
         setup: &EpisodeSetup,
-        outcome: Outcome,
-        computed_commands: u64,
-        tick_times: TickStats,
-        failure: Option<String>,
+        end: Ending,
     ) -> EpisodeResult {
+        let Ending {
+            outcome,
+            computed_commands,
+            tick_times,
+            failure,
+            expert_executed,
+        } = end;
         self.robot_path.push(self.last_position);
         self.ball_path
             .push(simulation.world().ball().position.truncate());
@@ -332,7 +418,70 @@ impl Trace {
             computed_commands,
             tick_times,
             failure,
+            expert_executed,
         }
+    }
+}
+
+/// A labelled episode's state beside the link: the expert, the rows, the expert command
+/// being executed, the thumbnails made from the frames the controller computed from.
+struct Labelling<'r> {
+    labels: ExpertLabels,
+    recording: Option<&'r mut EpisodeRecording>,
+    /// The expert's command while it is the executed one (until the next computed command).
+    held: Option<SpeedCommand>,
+    thumbnails: (Box<TopThumbnail>, Box<BottomThumbnail>),
+}
+
+impl Labelling<'_> {
+    /// The command to execute for the controller's `command`, with the state labelled.
+    /// Thumbnails are made by the robot's own code from the frames the command names;
+    /// a command computed from other frames than the newest ones is an error (the
+    /// lock-step would have been broken), since the row would not show what the policy saw.
+    fn follow(
+        &mut self,
+        command: &MotionCommand,
+        truth: GroundTruth,
+        time_s: f64,
+        frames: (&TopFrame, &BottomFrame),
+    ) -> Result<(SpeedCommand, bool), String> {
+        if !command.is_new() {
+            // A repeat holds what was executed; a stop (cameras silent) stops.
+            return Ok(match self.held {
+                Some(speed) if !command.is_stop() => (speed, false),
+                _ => (command.speed, false),
+            });
+        }
+        let (top, bottom) = frames;
+        let (top_sequence, bottom_sequence) = (top.header().sequence, bottom.header().sequence);
+        if (command.top_sequence, command.bottom_sequence) != (top_sequence, bottom_sequence) {
+            return Err(format!(
+                "the controller computed from frames {}/{} but the newest are {top_sequence}/{bottom_sequence}: \
+                 the row would not show what it saw",
+                command.top_sequence, command.bottom_sequence
+            ));
+        }
+        let (expert, phase, executed) = self.labels.label(&truth);
+        self.held = executed.then_some(expert);
+        if let Some(recording) = self.recording.as_deref_mut() {
+            let (top_thumbnail, bottom_thumbnail) = &mut self.thumbnails;
+            downscale(top, top_thumbnail);
+            downscale(bottom, bottom_thumbnail);
+            recording.push(Row {
+                top: top_thumbnail,
+                bottom: bottom_thumbnail,
+                command: expert,
+                robot: truth.robot,
+                ball: truth.ball,
+                time_s,
+                phase,
+                policy_command: Some(PolicyCommand {
+                    speed: command.speed,
+                    expert_executed: executed,
+                }),
+            });
+        }
+        Ok((if executed { expert } else { command.speed }, executed))
     }
 }
 
@@ -344,6 +493,7 @@ fn run_linked(
     setup: &EpisodeSetup,
     config: &EpisodeConfig,
     link: &mut dyn ControllerLink,
+    mut labelling: Option<Labelling<'_>>,
     mut renderer: Option<&mut Renderer>,
 ) -> Result<EpisodeResult, RenderError> {
     let mut simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
@@ -352,6 +502,7 @@ fn run_linked(
     let mut tick_times = TickStats::new(config.control.budget);
     let mut trace = Trace::new(setup);
     let mut computed_commands = 0;
+    let mut expert_executed = 0;
     let mut failure = None;
     let mut index = 0;
     let mut exchange = |simulation: &Simulation,
@@ -398,7 +549,27 @@ fn run_linked(
         }
         trace.after_step(&simulation);
         match exchange(&simulation, camera, &top, &bottom) {
-            Ok(Some(command)) => simulation.set_command(command.speed),
+            Ok(Some(command)) => match labelling.as_mut() {
+                None => simulation.set_command(command.speed),
+                Some(labelling) => {
+                    let truth = GroundTruth {
+                        robot: simulation.world().robot_pose(),
+                        ball: simulation.world().ball().position.truncate(),
+                        target_side: setup.target_side,
+                    };
+                    let time_s = simulation.time().as_nanos() as f64 / 1e9;
+                    match labelling.follow(&command, truth, time_s, (&top, &bottom)) {
+                        Ok((speed, executed)) => {
+                            expert_executed += u64::from(executed);
+                            simulation.set_command(speed);
+                        }
+                        Err(error) => {
+                            failure = Some(error);
+                            break Outcome::ControllerLost;
+                        }
+                    }
+                }
+            },
             Ok(None) => {}
             Err(error) => {
                 failure = Some(error.to_string());
@@ -409,12 +580,12 @@ fn run_linked(
             break outcome;
         }
     };
-    Ok(trace.finish(
-        &simulation,
-        setup,
+    let end = Ending {
         outcome,
         computed_commands,
         tick_times,
         failure,
-    ))
+        expert_executed,
+    };
+    Ok(trace.finish(&simulation, setup, end))
 }

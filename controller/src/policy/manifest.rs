@@ -108,6 +108,14 @@ pub struct Gating {
     pub centroids: Vec<[f32; GATING_FEATURE_LEN]>,
 }
 
+/// A dataset named by a directory (for people) and its content hash (for checks).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetReference {
+    pub name: String,
+    pub hash: String,
+}
+
 /// Where the weights came from.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -118,6 +126,9 @@ pub struct TrainingRecord {
     pub dataset_hash: Option<String>,
     /// The content hash of the dataset `test_error` was measured on.
     pub test_dataset_hash: Option<String>,
+    /// Datasets trained on besides `dataset`, every row of them (DAgger's aggregated
+    /// policy-driven episodes); `dataset` alone supplies the validation episodes.
+    pub added_datasets: Option<Vec<DatasetReference>>,
     /// Epochs trained, and the one whose weights these are (best validation error).
     pub epochs: u32,
     pub best_epoch: Option<u32>,

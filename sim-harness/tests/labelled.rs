@@ -1,0 +1,209 @@
+//! DAgger's labelled episodes: a policy drives through a controller, and every recorded row
+//! holds the thumbnails the policy saw, the policy's own command and the expert's command
+//! for that state. Needs a wgpu adapter (lavapipe on CPU machines).
+
+use std::hash::{DefaultHasher, Hash, Hasher};
+use std::sync::{Arc, Mutex};
+
+use dribble_controller::{LoopConfig, Policy, PolicyError, PolicyInput, PolicyOutput};
+use dribble_sim::camera_geometry::CameraGeometry;
+use dribble_sim::controller_link::{LinkTimeouts, ThreadLink};
+use dribble_sim::dataset::{EpisodeRecording, NpyArray, read_npz};
+use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::expert::{Expert, ExpertConfig, GroundTruth, Phase};
+use dribble_sim::field::FieldGeometry;
+use dribble_sim::pose::FieldPose;
+use dribble_sim::render::Renderer;
+use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, ExpertLabels, run_episode};
+use dribble_sim::world::WorldConfig;
+
+/// Walks forward and turns, whatever it sees, and notes a hash of every pair it saw.
+struct Walker {
+    seen: Arc<Mutex<Vec<u64>>>,
+}
+
+const WALKER: PolicyOutput = PolicyOutput {
+    forward: 0.5,
+    left: 0.0,
+    turn: 0.4,
+};
+
+impl Policy for Walker {
+    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        let mut hasher = DefaultHasher::new();
+        input.top.as_bytes().hash(&mut hasher);
+        input.bottom.as_bytes().hash(&mut hasher);
+        if let Ok(mut seen) = self.seen.lock() {
+            seen.push(hasher.finish());
+        }
+        Ok(WALKER)
+    }
+
+    fn reset(&mut self) {}
+}
+
+fn config() -> EpisodeConfig {
+    EpisodeConfig {
+        time_limit_s: 6.0,
+        ..EpisodeConfig::default()
+    }
+}
+
+fn renderer() -> Renderer {
+    Renderer::new(
+        &FieldGeometry::SPL,
+        WorldConfig::default().goal_depth,
+        &CameraGeometry::nao(),
+    )
+    .unwrap_or_else(|error| panic!("{error}"))
+}
+
+fn expert() -> Expert {
+    Expert::new(ExpertConfig::default(), FieldGeometry::SPL)
+}
+
+/// A labelled episode driven by the walker in a controller thread: its result, its rows
+/// and the hashes of the thumbnails the walker saw.
+fn labelled(seed: u64, beta: f64) -> (EpisodeResult, Rows, Vec<u64>) {
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let walker_seen = Arc::clone(&seen);
+    let load = move || Ok(Box::new(Walker { seen: walker_seen }) as Box<dyn Policy>);
+    let mut link =
+        ThreadLink::spawn(LoopConfig::default(), load, LinkTimeouts::default()).expect("spawn");
+    let mut recording = EpisodeRecording::default();
+    let labels = ExpertLabels::new(expert(), beta, seed);
+    let result = run_episode(
+        &EpisodeSetup::from_seed(seed),
+        &config(),
+        Driver::LabelledController(&mut link, Box::new(labels)),
+        Some(&mut renderer()),
+        Some(&mut recording),
+    )
+    .expect("renders");
+    assert!(result.failure.is_none(), "{:?}", result.failure);
+    let seen = seen.lock().expect("not poisoned").clone();
+    (result, Rows::of(&recording, seed), seen)
+}
+
+/// A recorded episode's arrays, read back from its `.npz`.
+struct Rows {
+    arrays: std::collections::BTreeMap<String, NpyArray>,
+}
+
+impl Rows {
+    fn of(recording: &EpisodeRecording, seed: u64) -> Self {
+        let path = std::env::temp_dir().join(format!(
+            "dribble-labelled-{}-{seed}-{:p}.npz",
+            std::process::id(),
+            recording
+        ));
+        recording.write(&path).expect("write");
+        let arrays = read_npz(&path).expect("read back");
+        std::fs::remove_file(&path).expect("clean up");
+        Self { arrays }
+    }
+
+    fn len(&self) -> usize {
+        self.arrays["phase"].data.len()
+    }
+
+    fn f32s(&self, name: &str) -> Vec<f32> {
+        self.arrays[name].as_f32()
+    }
+
+    fn thumbnail_hashes(&self) -> Vec<u64> {
+        let (top, bottom) = (&self.arrays["top"].data, &self.arrays["bottom"].data);
+        (0..self.len())
+            .map(|i| {
+                let mut hasher = DefaultHasher::new();
+                top[i * 120 * 160..(i + 1) * 120 * 160].hash(&mut hasher);
+                bottom[i * 60 * 80..(i + 1) * 60 * 80].hash(&mut hasher);
+                hasher.finish()
+            })
+            .collect()
+    }
+}
+
+#[test]
+fn labels_are_the_experts_commands_for_the_states_the_policy_visited() {
+    let seed = 1_000;
+    let (result, rows, seen) = labelled(seed, 0.5);
+    let n = rows.len();
+    assert_eq!(n as u64, result.computed_commands);
+    assert!(n > 100, "{n} rows in 6 s");
+
+    // The thumbnails stored are the ones the policy was given, row for row.
+    assert_eq!(rows.thumbnail_hashes(), seen);
+
+    // The expert, called directly on the recorded states in order, gives the labels.
+    let setup = EpisodeSetup::from_seed(seed);
+    let (pose, ball) = (rows.f32s("robot_pose"), rows.f32s("ball"));
+    let (labels, phases) = (rows.f32s("command"), &rows.arrays["phase"].data);
+    let mut expert = expert();
+    for i in 0..n {
+        let truth = GroundTruth {
+            robot: FieldPose::new(pose[3 * i], pose[3 * i + 1], pose[3 * i + 2]),
+            ball: glam::Vec2::new(ball[2 * i], ball[2 * i + 1]),
+            target_side: setup.target_side,
+        };
+        let (command, phase) = expert.decide(&truth);
+        assert_eq!(command.as_array(), labels[3 * i..3 * i + 3], "row {i}");
+        assert_eq!(phase as u8, phases[i], "row {i}");
+    }
+
+    // The policy's own commands are kept beside the labels; the expert's replaced about
+    // half of them, as beta says, and the count matches the rows' flags.
+    let policy = rows.f32s("policy_command");
+    for i in 0..n {
+        assert_eq!(
+            policy[3 * i..3 * i + 3],
+            [WALKER.forward, WALKER.left, WALKER.turn]
+        );
+    }
+    let executed = &rows.arrays["expert_executed"].data;
+    let count = executed.iter().filter(|&&e| e == 1).count();
+    assert_eq!(count as u64, result.expert_executed);
+    assert!(
+        (n * 35 / 100..=n * 65 / 100).contains(&count),
+        "{count} of {n}"
+    );
+    // The walker's steady turn would differ from the expert's labels somewhere.
+    assert!(labels.chunks(3).any(|l| l != [0.5, 0.0, 0.4]));
+}
+
+#[test]
+fn beta_one_replays_the_experts_own_episode_and_the_draws_are_seeded() {
+    let seed = 1_001;
+    let (_, followed, _) = labelled(seed, 1.0);
+    let mut recording = EpisodeRecording::default();
+    run_episode(
+        &EpisodeSetup::from_seed(seed),
+        &config(),
+        Driver::Expert(expert()),
+        Some(&mut renderer()),
+        Some(&mut recording),
+    )
+    .expect("renders");
+    let driven = Rows::of(&recording, seed);
+    // With the expert's command always executed, the robot goes where the expert takes it.
+    assert_eq!(followed.len(), driven.len());
+    assert_eq!(followed.f32s("robot_pose"), driven.f32s("robot_pose"));
+    assert_eq!(followed.f32s("command"), driven.f32s("command"));
+    assert!(
+        followed.arrays["phase"]
+            .data
+            .iter()
+            .any(|&p| p != Phase::Search as u8)
+    );
+
+    // The same seed and beta draw the same executions; beta 0 lets the policy drive alone.
+    let (_, once, _) = labelled(seed + 1, 0.3);
+    let (_, again, _) = labelled(seed + 1, 0.3);
+    assert_eq!(
+        once.arrays["expert_executed"].data,
+        again.arrays["expert_executed"].data
+    );
+    assert_eq!(once.f32s("robot_pose"), again.f32s("robot_pose"));
+    let (alone, _, _) = labelled(seed + 1, 0.0);
+    assert_eq!(alone.expert_executed, 0);
+}

@@ -1,0 +1,233 @@
+//! Reaching a learned policy's controller from the simulator, as `dribble eval` and
+//! `dribble record --driver` both do: the `dribble-controller` process over iceoryx2 shared
+//! memory (started here unless one already runs in the domain), or the same controller code
+//! in a thread of this process over channels.
+
+use std::fs::{File, OpenOptions};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use dribble_controller::Policy;
+use dribble_controller::control_loop::LoopConfig;
+use dribble_controller::policy::OnnxPolicy;
+use dribble_controller::transport::ipc::Domain;
+use dribble_sim::controller_link::{ControllerLink, Iceoryx2Link, LinkTimeouts, ThreadLink};
+
+/// How frames and commands travel between the simulator and a policy's controller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Transport {
+    /// The `dribble-controller` process, over iceoryx2 shared memory, as on the robot.
+    Iceoryx2,
+    /// The same controller code in a thread of this process, over channels.
+    InProcess,
+}
+
+/// Where and how a policy's controller runs (shared by the commands that drive with one).
+#[derive(Debug, Args)]
+pub struct ControllerOptions {
+    /// How a policy's controller is reached (the expert always runs in the simulator).
+    #[arg(long, value_enum, default_value_t = Transport::Iceoryx2)]
+    pub transport: Transport,
+    /// The controller binary to start when none runs. Default: `dribble-controller`
+    /// beside this program.
+    #[arg(long)]
+    pub controller: Option<PathBuf>,
+    /// Where a controller started here writes its log and statistics.
+    #[arg(long, default_value = "controller.log")]
+    pub controller_log: PathBuf,
+    /// iceoryx2 domain. Default: $DRIBBLE_DOMAIN, else iceoryx2's default configuration.
+    #[arg(long)]
+    pub domain: Option<String>,
+    /// How long to wait for the command answering a tick before the episode fails, ms.
+    /// A controller that dies is noticed within about 10 ms whatever this is.
+    #[arg(long, default_value_t = 2000)]
+    pub answer_timeout_ms: u64,
+}
+
+impl ControllerOptions {
+    pub fn describe(&self) -> &'static str {
+        match self.transport {
+            Transport::Iceoryx2 => "iceoryx2 (controller process)",
+            Transport::InProcess => "in-process (controller thread)",
+        }
+    }
+
+    /// What a lock-step round trip measures over this transport.
+    pub fn latency_label(&self) -> &'static str {
+        match self.transport {
+            Transport::Iceoryx2 => {
+                "lock-step round trip (tick out, command back; computing ticks, this machine)"
+            }
+            Transport::InProcess => {
+                "lock-step round trip over channels (computing ticks, this machine)"
+            }
+        }
+    }
+
+    /// Empties the controller log for this run (its controllers then log there, one after
+    /// another).
+    pub fn start_log(&self) -> anyhow::Result<()> {
+        if self.transport == Transport::Iceoryx2 {
+            File::create(&self.controller_log).with_context(|| {
+                format!(
+                    "cannot write the controller log {}",
+                    self.controller_log.display()
+                )
+            })?;
+        }
+        Ok(())
+    }
+
+    fn timeouts(&self) -> LinkTimeouts {
+        LinkTimeouts {
+            answer: Duration::from_millis(self.answer_timeout_ms),
+            ..LinkTimeouts::default()
+        }
+    }
+}
+
+/// A policy's controller, reached over a transport.
+pub enum ControllerSession {
+    Thread(ThreadLink),
+    Process(Box<Iceoryx2Link>),
+}
+
+impl ControllerSession {
+    /// Starts (or, over iceoryx2, finds) a controller running `policy`.
+    pub fn open(
+        options: &ControllerOptions,
+        policy: &Path,
+        control: LoopConfig,
+    ) -> anyhow::Result<Self> {
+        match options.transport {
+            Transport::InProcess => {
+                let policy = policy.to_owned();
+                let load = move || {
+                    OnnxPolicy::load(&policy).map(|(policy, _)| Box::new(policy) as Box<dyn Policy>)
+                };
+                Ok(Self::Thread(ThreadLink::spawn(
+                    control,
+                    load,
+                    options.timeouts(),
+                )?))
+            }
+            Transport::Iceoryx2 => open_process(options, policy, control),
+        }
+    }
+
+    pub fn link(&mut self) -> &mut dyn ControllerLink {
+        match self {
+            Self::Thread(link) => link,
+            Self::Process(link) => link.as_mut(),
+        }
+    }
+
+    /// Stops a controller process this session started, and prints its statistics.
+    pub fn finish(self, options: &ControllerOptions) {
+        if let Self::Process(mut link) = self
+            && link.owns_controller()
+        {
+            link.stop_controller();
+            print_controller_statistics(&options.controller_log);
+        }
+    }
+}
+
+fn open_process(
+    options: &ControllerOptions,
+    policy: &Path,
+    control: LoopConfig,
+) -> anyhow::Result<ControllerSession> {
+    let domain = match &options.domain {
+        Some(name) => Domain::new(Some(name))?,
+        None => Domain::from_env()?,
+    };
+    let binary = controller_binary(options.controller.as_deref())?;
+    // Appended to: a controller started after one was lost keeps the first one's log.
+    let log = OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&options.controller_log)
+        .with_context(|| {
+            format!(
+                "cannot write the controller log {}",
+                options.controller_log.display()
+            )
+        })?;
+    let mut command = Command::new(&binary);
+    command
+        .arg("--rate-hz")
+        .arg((1.0 / control.tick_period.as_secs_f64()).to_string())
+        .args(["run", "--clock", "simulation"])
+        .arg("--policy")
+        .arg(policy)
+        .stdin(Stdio::null())
+        .stdout(log.try_clone()?)
+        .stderr(log);
+    // The child joins exactly this domain: named, or iceoryx2's default one.
+    match domain.name() {
+        Some(name) => command.args(["--domain", name]),
+        None => command.env_remove(Domain::ENV),
+    };
+    let link = Iceoryx2Link::connect(&domain, Some(&mut command), options.timeouts())
+        .with_context(|| {
+            format!(
+                "linking to a controller ({}) in iceoryx2 domain {}",
+                binary.display(),
+                domain.label()
+            )
+        })?;
+    if link.owns_controller() {
+        println!(
+            "controller: started {} (pid {}, domain {}, log {})",
+            binary.display(),
+            link.controller_pid().unwrap_or(-1),
+            domain.label(),
+            options.controller_log.display()
+        );
+    } else {
+        println!(
+            "controller: using the one already running in domain {} (pid {}); its policy is its own",
+            domain.label(),
+            link.controller_pid().unwrap_or(-1)
+        );
+    }
+    if link.cleaned_dead_nodes() > 0 {
+        println!(
+            "iceoryx2: cleaned up after {} dead process(es) in domain {}",
+            link.cleaned_dead_nodes(),
+            domain.label()
+        );
+    }
+    Ok(ControllerSession::Process(Box::new(link)))
+}
+
+/// `--controller`, else `dribble-controller` beside this executable, else on the PATH.
+fn controller_binary(given: Option<&Path>) -> anyhow::Result<PathBuf> {
+    if let Some(path) = given {
+        if !path.is_file() {
+            bail!("--controller {}: no such file", path.display());
+        }
+        return Ok(path.to_owned());
+    }
+    let beside = std::env::current_exe()?.with_file_name("dribble-controller");
+    if beside.is_file() {
+        return Ok(beside);
+    }
+    Ok(PathBuf::from("dribble-controller"))
+}
+
+/// The statistics a stopped controller printed (its log's lines that are not log events).
+fn print_controller_statistics(log: &Path) {
+    let Ok(text) = std::fs::read_to_string(log) else {
+        return;
+    };
+    println!();
+    println!("controller statistics ({}):", log.display());
+    for line in text.lines().filter(|l| !l.starts_with("ts=")) {
+        println!("  {line}");
+    }
+}
