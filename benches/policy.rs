@@ -1,30 +1,61 @@
 //! Policy steps of the committed fixture policies (the paper's architectures with seeded
-//! weights), and a whole tick with the CNN: thumbnails of both cameras plus the step.
+//! weights), per kind, on the compiled engine (this CPU's widest instruction set, the Nao
+//! V6's SSE4.2 and the V5's SSSE3) and on tract. Whole ticks with a real policy are in
+//! `benches/tick.rs`.
 //!
-//! To measure with the Nao's instruction set (SSE only, no AVX or FMA) on this machine:
-//! `TRACT_CPU_ISA=-avx,-avx2,-fma,-f16c,-avx512f cargo bench --bench policy`.
+//! tract chooses its kernels once per process from `TRACT_CPU_ISA`, so its SSE-only figures
+//! come from a second run of this benchmark that it starts itself with
+//! `TRACT_CPU_ISA=-avx,-avx2,-fma,-f16c,-avx512f` (group "tract SSE only"); both runs'
+//! figures print together.
 
 use std::hint::black_box;
 use std::path::Path;
-use std::time::Duration;
+use std::process::Command;
 
-use criterion::{Criterion, criterion_group, criterion_main};
-use dribble_controller::policy::OnnxPolicy;
+use criterion::Criterion;
+use dribble_controller::policy::engine::Isa;
+use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::{
-    BottomFrame, BottomThumbnail, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, Policy,
-    PolicyInput, Timestamp, TopFrame, TopThumbnail,
+    BottomFrame, BottomThumbnail, Policy, PolicyInput, Timestamp, TopFrame, TopThumbnail,
 };
 
-fn load(kind: &str) -> OnnxPolicy {
+/// Set in the second run, which measures tract with SSE only.
+const SSE_ONLY_RUN: &str = "DRIBBLE_BENCH_TRACT_SSE_ONLY";
+const TRACT_SSE_ONLY: &str = "-avx,-avx2,-fma,-f16c,-avx512f";
+
+fn load(kind: &str, engine: Engine, isa: Option<Isa>) -> OnnxPolicy {
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("models/fixtures")
         .join(kind)
         .join("policy.toml");
-    OnnxPolicy::load(&manifest)
+    let policy = OnnxPolicy::load_with(&manifest, EngineOptions { engine, isa })
         .unwrap_or_else(|error| panic!("{error}"))
-        .0
+        .0;
+    if engine == Engine::Compiled {
+        assert!(policy.engine().compiled.is_some(), "{}", policy.engine());
+    }
+    policy
+}
+
+/// The engines measured in this run: (label, engine, instruction set).
+fn engines() -> Vec<(String, Engine, Option<Isa>)> {
+    if std::env::var_os(SSE_ONLY_RUN).is_some() {
+        return vec![("tract SSE only".into(), Engine::Tract, None)];
+    }
+    let mut engines = vec![(
+        format!("engine {}", Isa::detect()),
+        Engine::Compiled,
+        Some(Isa::detect()),
+    )];
+    for isa in [Isa::Sse42, Isa::Ssse3] {
+        if isa.is_available() && isa != Isa::detect() {
+            engines.push((format!("engine {isa}"), Engine::Compiled, Some(isa)));
+        }
+    }
+    engines.push(("tract".into(), Engine::Tract, None));
+    engines
 }
 
 fn policies(c: &mut Criterion) {
@@ -39,39 +70,45 @@ fn policies(c: &mut Criterion) {
     downscale(&top_frame, &mut top);
     downscale(&bottom_frame, &mut bottom);
 
-    let mut group = c.benchmark_group("policy step");
-    for (name, kind) in [("CNN", "cnn"), ("H-CNN", "hcnn"), ("R-CNN", "rcnn")] {
-        let mut policy = load(kind);
-        group.bench_function(name, |b| {
-            b.iter(|| {
-                let input = PolicyInput {
-                    top: black_box(&top),
-                    bottom: black_box(&bottom),
-                };
-                black_box(policy.step(input).expect("step"))
-            })
-        });
+    for (label, engine, isa) in engines() {
+        let mut group = c.benchmark_group(format!("policy step/{label}"));
+        for (name, kind) in [("CNN", "cnn"), ("H-CNN", "hcnn"), ("R-CNN", "rcnn")] {
+            let mut policy = load(kind, engine, isa);
+            group.bench_function(name, |b| {
+                b.iter(|| {
+                    let input = PolicyInput {
+                        top: black_box(&top),
+                        bottom: black_box(&bottom),
+                    };
+                    black_box(policy.step(input).expect("step"))
+                })
+            });
+        }
+        group.finish();
     }
-    group.finish();
-
-    let clock = ManualClock::default();
-    let mut control = ControlLoop::new(LoopConfig::default(), load("cnn"), clock.clone());
-    let mut sequence = 0;
-    c.bench_function("tick/both cameras new (thumbnails + CNN)", |b| {
-        b.iter(|| {
-            sequence += 1;
-            clock.advance(Duration::from_millis(33));
-            top_frame.restamp(sequence, clock.now());
-            bottom_frame.restamp(sequence, clock.now());
-            let input = CameraInput {
-                top: Some(&top_frame),
-                bottom: Some(&bottom_frame),
-            };
-            black_box(control.tick(black_box(input)))
-        })
-    });
-    assert_eq!(control.counters().policy_failures, 0);
 }
 
-criterion_group!(benches, policies);
-criterion_main!(benches);
+fn main() {
+    let mut criterion = Criterion::default().configure_from_args();
+    policies(&mut criterion);
+    criterion.final_summary();
+    if std::env::var_os(SSE_ONLY_RUN).is_none() {
+        // tract with SSE only, in a process of its own (it reads its ISA once), with the same
+        // flags (`--bench`, or test mode under `cargo test`).
+        let flags: Vec<String> = std::env::args()
+            .skip(1)
+            .filter(|a| a.starts_with("--"))
+            .collect();
+        let status = std::env::current_exe().and_then(|exe| {
+            Command::new(exe)
+                .args(&flags)
+                .env(SSE_ONLY_RUN, "1")
+                .env("TRACT_CPU_ISA", TRACT_SSE_ONLY)
+                .status()
+        });
+        match status {
+            Ok(status) if status.success() => {}
+            other => panic!("the tract SSE-only run failed: {other:?}"),
+        }
+    }
+}

@@ -1,14 +1,15 @@
-//! Allocations per policy step, per kind, measured with a counting allocator.
+//! Allocations per policy step, per kind and engine, measured with a counting allocator.
 //!
-//! tract allocates its intermediate tensors on every run by design, so these numbers are not
-//! zero; what the test holds to is that they are the same on every step (nothing grows or
-//! leaks from step to step) and that the tick around the policy adds nothing of its own.
+//! The compiled engine allocates nothing. tract allocates its intermediate tensors on every
+//! run by design, so its numbers are not zero; what the test holds to there is that they are
+//! the same on every step (nothing grows or leaks from step to step) and that the tick
+//! around the policy adds nothing of its own.
 
 mod support;
 
 use std::time::Duration;
 
-use dribble_controller::policy::OnnxPolicy;
+use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::{
@@ -23,8 +24,15 @@ static ALLOCATOR: CountingAllocator = CountingAllocator;
 
 const STEPS: usize = 40;
 
-fn per_step_allocations(kind: &str) -> Vec<(u64, u64)> {
-    let (mut policy, _) = OnnxPolicy::load(&fixture_manifest(kind)).expect("fixture loads");
+fn load(kind: &str, engine: Engine) -> OnnxPolicy {
+    let options = EngineOptions { engine, isa: None };
+    OnnxPolicy::load_with(&fixture_manifest(kind), options)
+        .expect("fixture loads")
+        .0
+}
+
+fn per_step_allocations(kind: &str, engine: Engine) -> Vec<(u64, u64)> {
+    let mut policy = load(kind, engine);
     let pattern = TestPattern::default();
     let (mut top_frame, mut bottom_frame) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
     let (mut top, mut bottom) = (
@@ -50,12 +58,13 @@ fn per_step_allocations(kind: &str) -> Vec<(u64, u64)> {
     counts.split_off(5) // the first steps warm tract's caches
 }
 
-fn report(kind: &str) {
-    let counts = per_step_allocations(kind);
+fn report(kind: &str, engine: Engine) -> u64 {
+    let counts = per_step_allocations(kind, engine);
     let (allocations, bytes): (Vec<u64>, Vec<u64>) = counts.iter().copied().unzip();
     let mean_bytes = bytes.iter().sum::<u64>() as f64 / bytes.len() as f64;
     println!(
-        "{kind}: {} to {} allocations per step, {:.0} bytes per step on average ({} to {})",
+        "{kind} ({}): {} to {} allocations per step, {:.0} bytes per step on average ({} to {})",
+        engine.name(),
         allocations.iter().min().expect("steps"),
         allocations.iter().max().expect("steps"),
         mean_bytes,
@@ -68,6 +77,7 @@ fn report(kind: &str) {
         spread == 0,
         "{kind}: allocations per step vary by {spread}, so something accumulates: {allocations:?}"
     );
+    allocations.iter().copied().max().unwrap_or(0)
 }
 
 // One test function, so no other test runs beside it: tract shares caches between threads,
@@ -75,7 +85,12 @@ fn report(kind: &str) {
 #[test]
 fn allocations_per_step_are_steady_and_the_tick_adds_none() {
     for kind in ["cnn", "hcnn", "rcnn"] {
-        report(kind);
+        assert_eq!(
+            report(kind, Engine::Compiled),
+            0,
+            "{kind} on the compiled engine"
+        );
+        report(kind, Engine::Tract);
     }
     tick_adds_no_allocation_to_the_policys();
 }
@@ -83,7 +98,7 @@ fn allocations_per_step_are_steady_and_the_tick_adds_none() {
 fn tick_adds_no_allocation_to_the_policys() {
     // A tick that computes allocates exactly what the policy step does; a repeating tick
     // allocates nothing.
-    let (policy, _) = OnnxPolicy::load(&fixture_manifest("cnn")).expect("fixture loads");
+    let policy = load("cnn", Engine::Tract);
     let clock = ManualClock::default();
     let mut control = ControlLoop::new(LoopConfig::default(), policy, clock.clone());
     let pattern = TestPattern::default();
@@ -107,13 +122,13 @@ fn tick_adds_no_allocation_to_the_policys() {
         assert_eq!(repeat_allocations, 0);
     }
     assert_eq!(control.counters().new_commands, 20);
-    let policy_steps = per_step_allocations("cnn");
+    let policy_steps = per_step_allocations("cnn", Engine::Tract);
     let tick = compute_counts[5..]
         .iter()
         .map(|c| c.0)
         .max()
         .expect("ticks");
     let step = policy_steps.iter().map(|c| c.0).max().expect("steps");
-    println!("cnn: a computing tick allocates {tick} times, a policy step {step} times");
+    println!("cnn (tract): a computing tick allocates {tick} times, a policy step {step} times");
     assert_eq!(tick, step);
 }

@@ -1,4 +1,5 @@
-//! The controller tick allocates nothing after start-up.
+//! The controller tick allocates nothing after start-up, with the test policy and with a
+//! real ONNX policy of each kind on the compiled engine.
 //!
 //! A counting global allocator counts the allocations made on this test's thread while
 //! counting is switched on; the tick runs over random frames with drops, duplicates,
@@ -8,8 +9,10 @@ mod support;
 
 use std::time::Duration;
 
-use dribble_controller::policy::BrightnessPolicy;
-use dribble_controller::{CameraFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock};
+use dribble_controller::policy::{BrightnessPolicy, Engine, EngineOptions, OnnxPolicy};
+use dribble_controller::{
+    CameraFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, Policy,
+};
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use support::counting_allocator::{CountingAllocator, count_allocations};
@@ -70,17 +73,14 @@ impl<const W: usize, const H: usize> UnreliableCamera<W, H> {
     }
 }
 
-#[test]
-fn ten_thousand_ticks_allocate_nothing_after_start_up() {
+/// Runs `ticks` ticks of `policy` over unreliable cameras after a warm-up of 100; returns the
+/// allocations and bytes counted, and the loop.
+fn unreliable_ticks<P: Policy>(policy: P, ticks: u32) -> ((u64, u64), ControlLoop<P, ManualClock>) {
     let mut rng = ChaCha8Rng::seed_from_u64(2016);
     let mut top = UnreliableCamera::<640, 480>::new(&mut rng);
     let mut bottom = UnreliableCamera::<320, 240>::new(&mut rng);
     let clock = ManualClock::default();
-    let mut control = ControlLoop::new(
-        LoopConfig::default(),
-        BrightnessPolicy::default(),
-        clock.clone(),
-    );
+    let mut control = ControlLoop::new(LoopConfig::default(), policy, clock.clone());
     let mut run = |ticks: u32| {
         for _ in 0..ticks {
             let input = CameraInput {
@@ -96,7 +96,13 @@ fn ten_thousand_ticks_allocate_nothing_after_start_up() {
         }
     };
     run(100); // warm-up
-    let (allocations, bytes) = count_allocations(|| run(10_000));
+    let counted = count_allocations(|| run(ticks));
+    (counted, control)
+}
+
+#[test]
+fn ten_thousand_ticks_allocate_nothing_after_start_up() {
+    let ((allocations, bytes), control) = unreliable_ticks(BrightnessPolicy::default(), 10_000);
     println!("allocations in 10,000 ticks after warm-up: {allocations} ({bytes} bytes)");
 
     let counters = *control.counters();
@@ -111,6 +117,38 @@ fn ten_thousand_ticks_allocate_nothing_after_start_up() {
     assert!(sync.out_of_order.iter().all(|&n| n > 0), "{sync:?}");
     assert!(sync.restarts.iter().all(|&n| n > 0), "{sync:?}");
     assert_eq!(allocations, 0, "the tick allocated {bytes} bytes");
+}
+
+#[test]
+fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_the_compiled_engine() {
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    for name in [
+        "fixtures/cnn",
+        "fixtures/hcnn",
+        "fixtures/rcnn",
+        "policy/cnn-modal",
+    ] {
+        let manifest = models.join(name).join("policy.toml");
+        if !manifest.is_file() {
+            continue; // a shipped model that a checkout may not have
+        }
+        let options = EngineOptions {
+            engine: Engine::Compiled,
+            isa: None,
+        };
+        let (policy, _) = OnnxPolicy::load_with(&manifest, options).expect("loads");
+        let engine = policy.engine().to_string();
+        assert!(engine.starts_with("compiled"), "{name}: {engine}");
+        let ((allocations, bytes), control) = unreliable_ticks(policy, 1_500);
+        let counters = *control.counters();
+        println!(
+            "{name} ({engine}): {allocations} allocations ({bytes} bytes) in 1,500 ticks, {} of them computing",
+            counters.new_commands
+        );
+        assert!(counters.new_commands > 200, "{counters:?}");
+        assert_eq!(counters.policy_failures, 0);
+        assert_eq!(allocations, 0, "{name}: the tick allocated {bytes} bytes");
+    }
 }
 
 #[test]

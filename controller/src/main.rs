@@ -6,7 +6,9 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use dribble_controller::event_log::{Chain, Level, log};
+use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
+use dribble_controller::policy::{Engine, EngineOptions};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts};
 use dribble_controller::transport::{ControllerNode, NodeCounters, NodeEvent};
@@ -23,6 +25,15 @@ struct Cli {
     /// Control loop rate in ticks per second.
     #[arg(long, default_value_t = 100.0, global = true)]
     rate_hz: f64,
+    /// Which engine runs a learned policy: `tract`, or `compiled` (the controller's own
+    /// allocation-free engine; a network it cannot lower runs under tract, and the log
+    /// says why).
+    #[arg(long, default_value = "tract", global = true)]
+    engine: Engine,
+    /// The compiled engine's instruction set (portable, sse2, ssse3, sse4.2, avx2+fma).
+    /// Default: the widest this CPU runs.
+    #[arg(long, global = true)]
+    isa: Option<Isa>,
     #[command(subcommand)]
     command: Command,
 }
@@ -75,6 +86,10 @@ enum Command {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    let options = EngineOptions {
+        engine: cli.engine,
+        isa: cli.isa,
+    };
     if !(cli.rate_hz.is_finite() && cli.rate_hz > 0.0 && cli.rate_hz <= 10_000.0) {
         bail!("--rate-hz must be in (0, 10000], got {}", cli.rate_hz);
     }
@@ -92,7 +107,12 @@ fn main() -> anyhow::Result<()> {
                 Some(name) => Domain::new(Some(&name))?,
                 None => Domain::from_env()?,
             };
-            let result = run(config, load_policy(policy.as_deref())?, clock, &domain);
+            let result = run(
+                config,
+                load_policy(policy.as_deref(), options)?,
+                clock,
+                &domain,
+            );
             if let Err(error) = &result {
                 log(Level::Error, "failed", &[("error", &Chain(error.as_ref()))]);
             }
@@ -104,25 +124,26 @@ fn main() -> anyhow::Result<()> {
             drop_bottom_every,
         } => dry_run(
             config,
-            load_policy(policy.as_deref())?,
+            load_policy(policy.as_deref(), options)?,
             seconds,
             drop_bottom_every,
         ),
     }
 }
 
-fn load_policy(manifest: Option<&Path>) -> anyhow::Result<Box<dyn Policy>> {
+fn load_policy(manifest: Option<&Path>, options: EngineOptions) -> anyhow::Result<Box<dyn Policy>> {
     let Some(manifest) = manifest else {
         println!("policy: brightness test policy");
         return Ok(Box::new(BrightnessPolicy::default()));
     };
-    let (policy, manifest) = OnnxPolicy::load(manifest)?;
+    let (policy, manifest) = OnnxPolicy::load_with(manifest, options)?;
     println!(
-        "policy: {} from {} ({} network file(s), trained on {:?})",
+        "policy: {} from {} ({} network file(s), trained on {:?}), engine {}",
         manifest.kind,
         manifest.directory.display(),
         manifest.networks.len(),
-        manifest.training.dataset
+        manifest.training.dataset,
+        policy.engine()
     );
     Ok(Box::new(policy))
 }

@@ -1,4 +1,4 @@
-//! The controller's tract runtime reproduces PyTorch on the committed fixtures.
+//! The controller reproduces PyTorch (tract; the compiled engine is held to tract in engine_parity.rs) on the committed fixtures.
 
 mod support;
 
@@ -25,7 +25,7 @@ fn worst_difference(policy: &mut OnnxPolicy, kind: &str) -> f32 {
         for (g, e) in got.iter().zip(expected) {
             worst = worst.max((g - e).abs());
         }
-        if let (OnnxPolicy::Hcnn(hcnn), Some(clusters)) = (&*policy, &reference.clusters) {
+        if let (OnnxPolicy::Hcnn(hcnn, _), Some(clusters)) = (&*policy, &reference.clusters) {
             assert_eq!(
                 hcnn.last_network(),
                 Some(clusters[step]),
@@ -47,7 +47,7 @@ fn cnn_matches_pytorch() {
     let mut policy = load("cnn");
     assert_eq!(policy.kind(), PolicyKind::Cnn);
     let worst = worst_difference(&mut policy, "cnn");
-    println!("CNN: max |tract - PyTorch| = {worst:.2e}");
+    println!("CNN: max |controller - PyTorch| = {worst:.2e}");
     assert!(worst <= TOLERANCE, "{worst}");
 }
 
@@ -55,9 +55,9 @@ fn cnn_matches_pytorch() {
 fn hcnn_matches_pytorch_and_gates_like_python() {
     let mut policy = load("hcnn");
     let worst = worst_difference(&mut policy, "hcnn");
-    println!("H-CNN: max |tract - PyTorch| = {worst:.2e}");
+    println!("H-CNN: max |controller - PyTorch| = {worst:.2e}");
     assert!(worst <= TOLERANCE, "{worst}");
-    let OnnxPolicy::Hcnn(hcnn) = &policy else {
+    let OnnxPolicy::Hcnn(hcnn, _) = &policy else {
         panic!("an H-CNN fixture loads as {:?}", policy.kind());
     };
     assert!(
@@ -71,7 +71,7 @@ fn hcnn_matches_pytorch_and_gates_like_python() {
 fn rcnn_matches_pytorch_over_sixty_steps_and_reset_starts_afresh() {
     let mut policy = load("rcnn");
     let worst = worst_difference(&mut policy, "rcnn");
-    println!("R-CNN: max |tract - PyTorch| over 60 steps = {worst:.2e}");
+    println!("R-CNN: max |controller - PyTorch| over 60 steps = {worst:.2e}");
     assert!(worst <= TOLERANCE, "{worst}");
     // Without a reset the state of the first run would change the second one.
     policy.reset();

@@ -1,19 +1,84 @@
-//! The learned policies of the paper, run by tract: CNN, H-CNN and R-CNN.
+//! The learned policies of the paper: CNN, H-CNN and R-CNN.
 //!
-//! Each network is optimised and planned once at load. The input tensors are allocated once
-//! and shared with tract by reference count: a step writes the scaled thumbnails into them in
-//! place and hands tract a new reference, not a copy. tract itself still allocates its
-//! intermediate tensors on every run; that is measured and reported, and stays inside it.
+//! tract reads, checks and plans every network at load. With `Engine::Compiled` the
+//! compiled engine ([`super::engine`]) then runs it: a static plan with every buffer
+//! allocated at load, so a step allocates nothing. A network the engine cannot lower, or
+//! `Engine::Tract` (the default for now, see [`Engine`]), runs under tract: its input tensors are allocated once and shared with tract by reference
+//! count (a step writes the scaled thumbnails in place), but tract allocates its
+//! intermediate tensors on every run. [`OnnxPolicy::engine`] says which ran and why.
 
 use std::path::Path;
 use std::sync::Arc;
 
 use tract_onnx::prelude::{TValue, Tensor};
 
+use super::engine::{CompiledNetwork, Isa};
 use super::manifest::{BOTTOM_SHAPE, COMMAND_SHAPE, PolicyKind, PolicyManifest, TOP_SHAPE};
 use super::onnx_network::{Interface, OnnxNetwork, Port, zero_tensor};
 use super::{Policy, PolicyError, PolicyInput, PolicyLoadError, PolicyOutput};
 use crate::histogram::gating_feature;
+
+/// Which engine runs a policy's networks.
+///
+/// tract is the default for now: the compiled engine allocates nothing and matches tract to
+/// 1e-6, but its kernels are not yet faster than tract's (the compiler keeps too little of
+/// their accumulators in vector registers); it becomes the default when they are.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Engine {
+    /// The compiled engine (allocation-free steps), tract where it cannot lower a network.
+    Compiled,
+    /// tract for every network (the reference the engine is checked against).
+    #[default]
+    Tract,
+}
+
+impl Engine {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Compiled => "compiled",
+            Self::Tract => "tract",
+        }
+    }
+}
+
+impl std::str::FromStr for Engine {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        match text {
+            "compiled" => Ok(Self::Compiled),
+            "tract" => Ok(Self::Tract),
+            _ => Err(format!("unknown engine {text:?}; compiled or tract")),
+        }
+    }
+}
+
+/// How to load a policy: the engine, and for the compiled one the instruction set (the
+/// widest this CPU runs when `None`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EngineOptions {
+    pub engine: Engine,
+    pub isa: Option<Isa>,
+}
+
+/// What runs a loaded policy's networks.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EngineReport {
+    /// The compiled engine with this instruction set, or tract (`None`).
+    pub compiled: Option<Isa>,
+    /// Why tract runs a network although the compiled engine was asked for.
+    pub fallback: Option<String>,
+}
+
+impl std::fmt::Display for EngineReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (&self.compiled, &self.fallback) {
+            (Some(isa), _) => write!(f, "compiled ({isa})"),
+            (None, Some(why)) => write!(f, "tract (the compiled engine cannot run it: {why})"),
+            (None, None) => f.write_str("tract"),
+        }
+    }
+}
 
 /// The network inputs made from the thumbnails: `pixel * scale` as f32.
 #[derive(Debug)]
@@ -62,45 +127,6 @@ impl ThumbnailTensors {
     }
 }
 
-/// The inputs and output a CNN (and each H-CNN network) must have.
-fn cnn_interface(manifest: &PolicyManifest) -> [[(Port, &str, &[usize]); 2]; 2] {
-    [
-        [
-            (Port::Top, manifest.inputs.top.name.as_str(), &TOP_SHAPE),
-            (
-                Port::Bottom,
-                manifest.inputs.bottom.name.as_str(),
-                &BOTTOM_SHAPE,
-            ),
-        ],
-        [
-            (
-                Port::Command,
-                manifest.outputs.command.name.as_str(),
-                &COMMAND_SHAPE,
-            ),
-            (
-                Port::Command,
-                manifest.outputs.command.name.as_str(),
-                &COMMAND_SHAPE,
-            ),
-        ],
-    ]
-}
-
-fn load_cnn_network(
-    manifest: &PolicyManifest,
-    path: &Path,
-) -> Result<OnnxNetwork, PolicyLoadError> {
-    let [inputs, outputs] = cnn_interface(manifest);
-    let interface = Interface {
-        inputs: &inputs,
-        outputs: &outputs[..1],
-        opset: manifest.opset,
-    };
-    OnnxNetwork::load(path, &interface)
-}
-
 /// Reads the command from a network's outputs.
 fn command_of(outputs: &[(Port, TValue)]) -> Result<PolicyOutput, PolicyError> {
     let (_, value) = outputs
@@ -133,28 +159,239 @@ fn network_feed(tensors: &ThumbnailTensors) -> impl Fn(Port) -> TValue + '_ {
     }
 }
 
+/// The names a network's ports have in its file (from the manifest).
+#[derive(Clone, Debug)]
+struct PortNames {
+    top: String,
+    bottom: String,
+    command: String,
+    /// h_in, c_in, h_out, c_out of a recurrent network.
+    recurrent: Option<[String; 4]>,
+}
+
+/// One network, run by tract or by the compiled engine, with the state it carries.
+#[derive(Debug)]
+enum Network {
+    Tract {
+        network: OnnxNetwork,
+        tensors: ThumbnailTensors,
+        /// The recurrent state fed back, and the zero it starts from (R-CNN only).
+        state: Option<(TValue, TValue, Arc<Tensor>)>,
+    },
+    Compiled {
+        network: Box<CompiledNetwork>,
+        names: PortNames,
+        scale: f32,
+    },
+}
+
+impl Network {
+    fn load(
+        manifest: &PolicyManifest,
+        path: &Path,
+        names: PortNames,
+        options: EngineOptions,
+    ) -> Result<(Self, EngineReport), PolicyLoadError> {
+        let units = manifest.recurrent.as_ref().map_or(0, |r| r.units);
+        let state_shape = [1, 1, units];
+        let mut inputs = vec![
+            (Port::Top, names.top.as_str(), &TOP_SHAPE[..]),
+            (Port::Bottom, names.bottom.as_str(), &BOTTOM_SHAPE[..]),
+        ];
+        let mut outputs = vec![(Port::Command, names.command.as_str(), &COMMAND_SHAPE[..])];
+        if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent {
+            inputs.push((Port::Hidden, h_in.as_str(), &state_shape[..]));
+            inputs.push((Port::Cell, c_in.as_str(), &state_shape[..]));
+            outputs.push((Port::Hidden, h_out.as_str(), &state_shape[..]));
+            outputs.push((Port::Cell, c_out.as_str(), &state_shape[..]));
+        }
+        let interface = Interface {
+            inputs: &inputs,
+            outputs: &outputs,
+            opset: manifest.opset,
+        };
+        // tract reads, checks and plans the file in any case: it is the loader and the oracle.
+        let (network, proto) = OnnxNetwork::load(path, &interface)?;
+        let mut fallback = None;
+        if options.engine == Engine::Compiled {
+            let isa = options.isa.unwrap_or_else(Isa::detect);
+            let shapes: Vec<(&str, &[usize])> = inputs
+                .iter()
+                .map(|&(_, name, shape)| (name, shape))
+                .collect();
+            let lowered = proto
+                .graph
+                .as_ref()
+                .ok_or_else(|| super::engine::Unsupported("no graph".into()))
+                .and_then(|graph| CompiledNetwork::lower(path, graph, &shapes, isa));
+            match lowered {
+                Ok(compiled) => {
+                    let report = EngineReport {
+                        compiled: Some(isa),
+                        fallback: None,
+                    };
+                    let network = Self::Compiled {
+                        network: Box::new(compiled),
+                        names,
+                        scale: manifest.normalisation.scale,
+                    };
+                    return Ok((network, report));
+                }
+                Err(why) => fallback = Some(why.0),
+            }
+        }
+        let state = match &names.recurrent {
+            Some(_) => {
+                let zero = zero_tensor(path, &state_shape)?;
+                let value = TValue::from_const(Arc::clone(&zero));
+                Some((value.clone(), value, zero))
+            }
+            None => None,
+        };
+        let network = Self::Tract {
+            network,
+            tensors: ThumbnailTensors::new(manifest, path)?,
+            state,
+        };
+        Ok((
+            network,
+            EngineReport {
+                compiled: None,
+                fallback,
+            },
+        ))
+    }
+
+    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        match self {
+            Self::Tract {
+                network,
+                tensors,
+                state,
+            } => {
+                tensors.fill(input)?;
+                let outputs = match state {
+                    None => network.run(network_feed(tensors))?,
+                    Some((hidden, cell, _)) => network.run(|port| match port {
+                        Port::Hidden => hidden.clone(),
+                        Port::Cell => cell.clone(),
+                        _ => network_feed(tensors)(port),
+                    })?,
+                };
+                let command = command_of(&outputs)?;
+                if let Some((hidden, cell, _)) = state {
+                    for (port, value) in outputs {
+                        match port {
+                            Port::Hidden => *hidden = value,
+                            Port::Cell => *cell = value,
+                            _ => {}
+                        }
+                    }
+                }
+                Ok(command)
+            }
+            Self::Compiled {
+                network,
+                names,
+                scale,
+            } => {
+                for (name, pixels) in [
+                    (&names.top, input.top.as_bytes()),
+                    (&names.bottom, input.bottom.as_bytes()),
+                ] {
+                    let values = network
+                        .input_mut(name)
+                        .ok_or_else(|| PolicyError::Inference(format!("no input {name}")))?;
+                    for (value, &pixel) in values.iter_mut().zip(pixels) {
+                        *value = f32::from(pixel) * *scale;
+                    }
+                }
+                network.run();
+                let command = match network.output(&names.command) {
+                    Some(&[forward, left, turn]) => PolicyOutput {
+                        forward,
+                        left,
+                        turn,
+                    },
+                    _ => {
+                        return Err(PolicyError::Inference(
+                            "the command output is not 3 values".into(),
+                        ));
+                    }
+                };
+                if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent
+                    && !(network.carry(h_out, h_in) && network.carry(c_out, c_in))
+                {
+                    return Err(PolicyError::Inference(
+                        "the recurrent state cannot be carried".into(),
+                    ));
+                }
+                Ok(command)
+            }
+        }
+    }
+
+    fn reset(&mut self) {
+        match self {
+            Self::Tract {
+                state: Some((hidden, cell, zero)),
+                ..
+            } => {
+                *hidden = TValue::from_const(Arc::clone(zero));
+                *cell = TValue::from_const(Arc::clone(zero));
+            }
+            Self::Tract { state: None, .. } => {}
+            Self::Compiled { network, names, .. } => {
+                if let Some([h_in, c_in, _, _]) = &names.recurrent {
+                    for name in [h_in, c_in] {
+                        if let Some(values) = network.input_mut(name) {
+                            values.fill(0.0);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn port_names(manifest: &PolicyManifest) -> PortNames {
+    PortNames {
+        top: manifest.inputs.top.name.clone(),
+        bottom: manifest.inputs.bottom.name.clone(),
+        command: manifest.outputs.command.name.clone(),
+        recurrent: manifest.recurrent.as_ref().map(|r| {
+            [
+                r.h_in.clone(),
+                r.c_in.clone(),
+                r.h_out.clone(),
+                r.c_out.clone(),
+            ]
+        }),
+    }
+}
+
 /// One CNN on both thumbnails.
 #[derive(Debug)]
 pub struct CnnPolicy {
-    network: OnnxNetwork,
-    tensors: ThumbnailTensors,
+    network: Network,
 }
 
 impl CnnPolicy {
-    fn load(manifest: &PolicyManifest) -> Result<Self, PolicyLoadError> {
+    fn load(
+        manifest: &PolicyManifest,
+        options: EngineOptions,
+    ) -> Result<(Self, EngineReport), PolicyLoadError> {
         let path = manifest.directory.join(&manifest.networks[0]);
-        Ok(Self {
-            network: load_cnn_network(manifest, &path)?,
-            tensors: ThumbnailTensors::new(manifest, &path)?,
-        })
+        let mut names = port_names(manifest);
+        names.recurrent = None;
+        let (network, report) = Network::load(manifest, &path, names, options)?;
+        Ok((Self { network }, report))
     }
 }
 
 impl Policy for CnnPolicy {
     fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
-        self.tensors.fill(input)?;
-        let outputs = self.network.run(network_feed(&self.tensors))?;
-        command_of(&outputs)
+        self.network.step(input)
     }
 
     fn reset(&mut self) {}
@@ -163,32 +400,46 @@ impl Policy for CnnPolicy {
 /// K CNNs; the centroid nearest to the thumbnails' histogram feature picks one each step.
 #[derive(Debug)]
 pub struct HcnnPolicy {
-    networks: Vec<OnnxNetwork>,
+    networks: Vec<Network>,
     centroids: Vec<[f32; 10]>,
-    tensors: ThumbnailTensors,
     last_network: Option<usize>,
     selections: Vec<u64>,
 }
 
 impl HcnnPolicy {
-    fn load(manifest: &PolicyManifest) -> Result<Self, PolicyLoadError> {
-        let networks = manifest
-            .network_paths()
-            .map(|path| load_cnn_network(manifest, &path))
-            .collect::<Result<Vec<_>, _>>()?;
+    fn load(
+        manifest: &PolicyManifest,
+        options: EngineOptions,
+    ) -> Result<(Self, EngineReport), PolicyLoadError> {
+        let mut names = port_names(manifest);
+        names.recurrent = None;
+        let mut networks = Vec::new();
+        let mut report = EngineReport {
+            compiled: None,
+            fallback: None,
+        };
+        for (index, path) in manifest.network_paths().enumerate() {
+            let (network, own) = Network::load(manifest, &path, names.clone(), options)?;
+            // The policy's report is its first network's, or the first fallback's.
+            if index == 0 || (report.fallback.is_none() && own.fallback.is_some()) {
+                report = own;
+            }
+            networks.push(network);
+        }
         let centroids = manifest
             .gating
             .as_ref()
             .map(|gating| gating.centroids.clone())
             .unwrap_or_default();
-        let first = manifest.directory.join(&manifest.networks[0]);
-        Ok(Self {
-            selections: vec![0; networks.len()],
-            networks,
-            centroids,
-            tensors: ThumbnailTensors::new(manifest, &first)?,
-            last_network: None,
-        })
+        Ok((
+            Self {
+                selections: vec![0; networks.len()],
+                networks,
+                centroids,
+                last_network: None,
+            },
+            report,
+        ))
     }
 
     /// The network the last step ran, if any step ran.
@@ -225,9 +476,7 @@ impl Policy for HcnnPolicy {
         let chosen = nearest_centroid(&feature, &self.centroids);
         self.last_network = Some(chosen);
         self.selections[chosen] += 1;
-        self.tensors.fill(input)?;
-        let outputs = self.networks[chosen].run(network_feed(&self.tensors))?;
-        command_of(&outputs)
+        self.networks[chosen].step(input)
     }
 
     fn reset(&mut self) {}
@@ -237,104 +486,86 @@ impl Policy for HcnnPolicy {
 /// and is zero at an episode's start.
 #[derive(Debug)]
 pub struct RcnnPolicy {
-    network: OnnxNetwork,
-    tensors: ThumbnailTensors,
-    zero_state: Arc<Tensor>,
-    hidden: TValue,
-    cell: TValue,
+    network: Network,
 }
 
 impl RcnnPolicy {
-    fn load(manifest: &PolicyManifest) -> Result<Self, PolicyLoadError> {
+    fn load(
+        manifest: &PolicyManifest,
+        options: EngineOptions,
+    ) -> Result<(Self, EngineReport), PolicyLoadError> {
         let path = manifest.directory.join(&manifest.networks[0]);
-        let Some(recurrent) = &manifest.recurrent else {
+        if manifest.recurrent.is_none() {
             return Err(PolicyLoadError::Manifest {
                 path: manifest.directory.join("policy.toml"),
                 problem: "an R-CNN needs a [recurrent] table".into(),
             });
-        };
-        let state_shape = [1, 1, recurrent.units];
-        let [[top, bottom], [command, _]] = cnn_interface(manifest);
-        let inputs = [
-            top,
-            bottom,
-            (Port::Hidden, recurrent.h_in.as_str(), &state_shape[..]),
-            (Port::Cell, recurrent.c_in.as_str(), &state_shape[..]),
-        ];
-        let outputs = [
-            command,
-            (Port::Hidden, recurrent.h_out.as_str(), &state_shape[..]),
-            (Port::Cell, recurrent.c_out.as_str(), &state_shape[..]),
-        ];
-        let interface = Interface {
-            inputs: &inputs,
-            outputs: &outputs,
-            opset: manifest.opset,
-        };
-        let network = OnnxNetwork::load(&path, &interface)?;
-        let zero_state = zero_tensor(&path, &state_shape)?;
-        Ok(Self {
-            network,
-            tensors: ThumbnailTensors::new(manifest, &path)?,
-            hidden: TValue::from_const(Arc::clone(&zero_state)),
-            cell: TValue::from_const(Arc::clone(&zero_state)),
-            zero_state,
-        })
+        }
+        let (network, report) = Network::load(manifest, &path, port_names(manifest), options)?;
+        Ok((Self { network }, report))
     }
 }
 
 impl Policy for RcnnPolicy {
     fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
-        self.tensors.fill(input)?;
-        let (tensors, hidden, cell) = (&self.tensors, &self.hidden, &self.cell);
-        let outputs = self.network.run(|port| match port {
-            Port::Hidden => hidden.clone(),
-            Port::Cell => cell.clone(),
-            _ => network_feed(tensors)(port),
-        })?;
-        let command = command_of(&outputs)?;
-        for (port, value) in outputs {
-            match port {
-                Port::Hidden => self.hidden = value,
-                Port::Cell => self.cell = value,
-                _ => {}
-            }
-        }
-        Ok(command)
+        self.network.step(input)
     }
 
     fn reset(&mut self) {
-        self.hidden = TValue::from_const(Arc::clone(&self.zero_state));
-        self.cell = TValue::from_const(Arc::clone(&self.zero_state));
+        self.network.reset();
     }
 }
 
 /// Any of the three learned policies, as its manifest says.
 #[derive(Debug)]
 pub enum OnnxPolicy {
-    Cnn(CnnPolicy),
-    Hcnn(HcnnPolicy),
-    Rcnn(RcnnPolicy),
+    Cnn(CnnPolicy, EngineReport),
+    Hcnn(HcnnPolicy, EngineReport),
+    Rcnn(RcnnPolicy, EngineReport),
 }
 
 impl OnnxPolicy {
-    /// Loads the policy whose `policy.toml` is at `manifest_path`: reads and checks the
-    /// manifest and every network, optimises and plans them.
+    /// Loads the policy whose `policy.toml` is at `manifest_path` with the default engine.
     pub fn load(manifest_path: &Path) -> Result<(Self, PolicyManifest), PolicyLoadError> {
+        Self::load_with(manifest_path, EngineOptions::default())
+    }
+
+    /// Loads the policy whose `policy.toml` is at `manifest_path`: reads and checks the
+    /// manifest and every network, and prepares them for the engine `options` name.
+    pub fn load_with(
+        manifest_path: &Path,
+        options: EngineOptions,
+    ) -> Result<(Self, PolicyManifest), PolicyLoadError> {
         let manifest = PolicyManifest::load(manifest_path)?;
         let policy = match manifest.kind {
-            PolicyKind::Cnn => Self::Cnn(CnnPolicy::load(&manifest)?),
-            PolicyKind::Hcnn => Self::Hcnn(HcnnPolicy::load(&manifest)?),
-            PolicyKind::Rcnn => Self::Rcnn(RcnnPolicy::load(&manifest)?),
+            PolicyKind::Cnn => {
+                let (policy, report) = CnnPolicy::load(&manifest, options)?;
+                Self::Cnn(policy, report)
+            }
+            PolicyKind::Hcnn => {
+                let (policy, report) = HcnnPolicy::load(&manifest, options)?;
+                Self::Hcnn(policy, report)
+            }
+            PolicyKind::Rcnn => {
+                let (policy, report) = RcnnPolicy::load(&manifest, options)?;
+                Self::Rcnn(policy, report)
+            }
         };
         Ok((policy, manifest))
     }
 
     pub fn kind(&self) -> PolicyKind {
         match self {
-            Self::Cnn(_) => PolicyKind::Cnn,
-            Self::Hcnn(_) => PolicyKind::Hcnn,
-            Self::Rcnn(_) => PolicyKind::Rcnn,
+            Self::Cnn(..) => PolicyKind::Cnn,
+            Self::Hcnn(..) => PolicyKind::Hcnn,
+            Self::Rcnn(..) => PolicyKind::Rcnn,
+        }
+    }
+
+    /// Which engine runs the networks, and why tract does where it does.
+    pub fn engine(&self) -> &EngineReport {
+        match self {
+            Self::Cnn(_, report) | Self::Hcnn(_, report) | Self::Rcnn(_, report) => report,
         }
     }
 }
@@ -342,17 +573,17 @@ impl OnnxPolicy {
 impl Policy for OnnxPolicy {
     fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
         match self {
-            Self::Cnn(policy) => policy.step(input),
-            Self::Hcnn(policy) => policy.step(input),
-            Self::Rcnn(policy) => policy.step(input),
+            Self::Cnn(policy, _) => policy.step(input),
+            Self::Hcnn(policy, _) => policy.step(input),
+            Self::Rcnn(policy, _) => policy.step(input),
         }
     }
 
     fn reset(&mut self) {
         match self {
-            Self::Cnn(policy) => policy.reset(),
-            Self::Hcnn(policy) => policy.reset(),
-            Self::Rcnn(policy) => policy.reset(),
+            Self::Cnn(policy, _) => policy.reset(),
+            Self::Hcnn(policy, _) => policy.reset(),
+            Self::Rcnn(policy, _) => policy.reset(),
         }
     }
 }
@@ -366,11 +597,19 @@ mod tests {
     fn steps_reuse_the_input_tensors_instead_of_copying_them() {
         let manifest =
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.toml");
-        let (policy, _) = OnnxPolicy::load(&manifest).expect("fixture loads");
-        let OnnxPolicy::Cnn(mut policy) = policy else {
+        let options = EngineOptions {
+            engine: Engine::Tract,
+            isa: None,
+        };
+        let (policy, _) = OnnxPolicy::load_with(&manifest, options).expect("fixture loads");
+        let OnnxPolicy::Cnn(mut policy, _) = policy else {
             panic!("the cnn fixture is a CNN");
         };
-        let before = Arc::as_ptr(&policy.tensors.top);
+        let tensors = |policy: &CnnPolicy| match &policy.network {
+            Network::Tract { tensors, .. } => Arc::clone(&tensors.top),
+            Network::Compiled { .. } => panic!("tract was asked for"),
+        };
+        let before = Arc::as_ptr(&tensors(&policy));
         let (top, bottom) = (TopThumbnail::black(), BottomThumbnail::black());
         for _ in 0..3 {
             policy
@@ -379,14 +618,15 @@ mod tests {
                     bottom: &bottom,
                 })
                 .expect("step");
+            // One reference here, one in the policy: tract kept none.
             assert_eq!(
-                Arc::strong_count(&policy.tensors.top),
-                1,
+                Arc::strong_count(&tensors(&policy)),
+                2,
                 "tract kept a reference"
             );
         }
         assert_eq!(
-            Arc::as_ptr(&policy.tensors.top),
+            Arc::as_ptr(&tensors(&policy)),
             before,
             "the tensor was copied"
         );

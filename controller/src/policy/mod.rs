@@ -6,12 +6,15 @@
 //! the walk.
 
 mod brightness;
+pub mod engine;
 mod learned;
 pub mod manifest;
 mod onnx_network;
 
 pub use brightness::BrightnessPolicy;
-pub use learned::{CnnPolicy, HcnnPolicy, OnnxPolicy, RcnnPolicy};
+pub use learned::{
+    CnnPolicy, Engine, EngineOptions, EngineReport, HcnnPolicy, OnnxPolicy, RcnnPolicy,
+};
 pub use manifest::{PolicyKind, PolicyManifest};
 
 use std::path::PathBuf;

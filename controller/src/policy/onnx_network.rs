@@ -54,7 +54,11 @@ impl std::fmt::Debug for OnnxNetwork {
 }
 
 impl OnnxNetwork {
-    pub(crate) fn load(path: &Path, interface: &Interface<'_>) -> Result<Self, PolicyLoadError> {
+    /// Reads, checks and plans the network at `path`; also returns the file's parsed graph.
+    pub(crate) fn load(
+        path: &Path,
+        interface: &Interface<'_>,
+    ) -> Result<(Self, pb::ModelProto), PolicyLoadError> {
         let bytes = fs::read(path).map_err(|source| PolicyLoadError::Io {
             path: path.to_owned(),
             source,
@@ -135,12 +139,15 @@ impl OnnxNetwork {
             .map_err(|error| onnx_error(path, "cannot be planned", &error))?;
         let state = TypedSimpleState::new(&plan)
             .map_err(|error| onnx_error(path, "cannot be given a run state", &error))?;
-        Ok(Self {
-            path: path.to_owned(),
-            state,
-            feeds,
-            products,
-        })
+        Ok((
+            Self {
+                path: path.to_owned(),
+                state,
+                feeds,
+                products,
+            },
+            proto,
+        ))
     }
 
     /// Runs one step with `feed(port)` giving each input; returns the outputs by port.

@@ -1,0 +1,109 @@
+//! The instruction sets the engine's kernels are compiled for, and which of them this CPU
+//! runs. The kernels are written once, generically ([`super::kernels`]), and compiled once
+//! per set inside a `#[target_feature]` function, so each copy uses the widest registers
+//! and, where the CPU has it, fused multiply-add. The choice is made at load from CPU
+//! detection and can be forced (tests run every path the machine has).
+//!
+//! Own dispatch instead of a crate: it is a five-way `match` over functions the compiler
+//! generates from one generic body, and the tests need to force each path by name, which
+//! runtime-dispatch crates hide.
+
+use core::fmt;
+use core::str::FromStr;
+
+/// A set of instructions the kernels can be compiled for, from the most portable up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Isa {
+    /// No target features beyond the compiler's baseline: runs on any CPU Rust targets.
+    Portable,
+    /// SSE2: every x86-64 CPU, and the i686 build's baseline.
+    Sse2,
+    /// SSSE3: the Nao V5's Atom Z530.
+    Ssse3,
+    /// SSE4.1 and SSE4.2: the Nao V6's Atom E3845.
+    Sse42,
+    /// AVX2 with FMA: development machines.
+    Avx2Fma,
+}
+
+impl Isa {
+    pub const ALL: [Self; 5] = [
+        Self::Portable,
+        Self::Sse2,
+        Self::Ssse3,
+        Self::Sse42,
+        Self::Avx2Fma,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Portable => "portable",
+            Self::Sse2 => "sse2",
+            Self::Ssse3 => "ssse3",
+            Self::Sse42 => "sse4.2",
+            Self::Avx2Fma => "avx2+fma",
+        }
+    }
+
+    /// Whether this CPU can run the kernels compiled for `self`.
+    pub fn is_available(self) -> bool {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        {
+            match self {
+                Self::Portable => true,
+                Self::Sse2 => std::arch::is_x86_feature_detected!("sse2"),
+                Self::Ssse3 => {
+                    Self::Sse2.is_available() && std::arch::is_x86_feature_detected!("ssse3")
+                }
+                Self::Sse42 => {
+                    Self::Ssse3.is_available()
+                        && std::arch::is_x86_feature_detected!("sse4.1")
+                        && std::arch::is_x86_feature_detected!("sse4.2")
+                }
+                Self::Avx2Fma => {
+                    Self::Sse42.is_available()
+                        && std::arch::is_x86_feature_detected!("avx")
+                        && std::arch::is_x86_feature_detected!("avx2")
+                        && std::arch::is_x86_feature_detected!("fma")
+                }
+            }
+        }
+        #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+        {
+            self == Self::Portable
+        }
+    }
+
+    /// Every set this CPU runs, most portable first.
+    pub fn available() -> impl Iterator<Item = Self> {
+        Self::ALL.into_iter().filter(|isa| isa.is_available())
+    }
+
+    /// The widest set this CPU runs.
+    pub fn detect() -> Self {
+        Self::available().last().unwrap_or(Self::Portable)
+    }
+}
+
+impl fmt::Display for Isa {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Isa {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|isa| isa.name() == text)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::ALL.iter().map(|isa| isa.name()).collect();
+                format!(
+                    "unknown instruction set {text:?}; one of {}",
+                    names.join(", ")
+                )
+            })
+    }
+}

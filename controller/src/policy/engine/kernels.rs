@@ -1,0 +1,288 @@
+//! The engine's arithmetic, written once and compiled per instruction set ([`super::isa`]).
+//!
+//! Every kernel is `#[inline(always)]` and generic over how a product is added ([`MulAdd`]):
+//! inlined into a `#[target_feature]` function, the fixed-size inner loops over output
+//! channels become that set's vector instructions (4 lanes for SSE, 8 for AVX2), and with
+//! FMA one fused instruction per multiply-add. No kernel allocates: every buffer is the
+//! caller's, sized at load.
+//!
+//! Layouts: feature maps are NHWC (channels innermost, batch 1), so a pixel's output
+//! channels are one contiguous run that the vector registers hold; convolution weights are
+//! re-laid out at load as `[ky][kx][in][out]`, dense weights as `[out][in]`.
+
+/// How `a * b + c` is computed: fused (one rounding, the FMA instruction) or as a product
+/// and a sum.
+pub(crate) trait MulAdd {
+    fn mul_add(a: f32, b: f32, c: f32) -> f32;
+}
+
+/// One rounding: compiles to an FMA instruction where the target has one. Only used
+/// inside functions compiled with FMA enabled (elsewhere it would call the slow libm `fmaf`).
+#[derive(Debug)]
+pub(crate) struct Fused;
+
+impl MulAdd for Fused {
+    #[inline(always)]
+    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+        a.mul_add(b, c)
+    }
+}
+
+/// Product, then sum: two roundings, any target.
+#[derive(Debug)]
+pub(crate) struct Separate;
+
+impl MulAdd for Separate {
+    #[inline(always)]
+    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+        a * b + c
+    }
+}
+
+/// The shape of one convolution on a zero-bordered NHWC input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ConvShape {
+    /// The padded input's width (its height is implied by the output), and channels.
+    pub padded_width: usize,
+    pub in_channels: usize,
+    pub out_channels: usize,
+    pub kernel: [usize; 2],
+    pub stride: [usize; 2],
+    /// Output height and width.
+    pub out: [usize; 2],
+}
+
+/// Convolution of a zero-bordered NHWC input (`padded`: `[rows][padded_width][in]`) with
+/// weights `[ky][kx][in][OC]`, plus bias, optionally clamped at zero, into NHWC `out`.
+/// `P` neighbouring output pixels are computed together so each weight vector loaded is
+/// used `P` times; the `P x OC` accumulators stay in vector registers.
+#[inline(always)]
+pub(crate) fn conv<M: MulAdd, const OC: usize, const P: usize>(
+    shape: &ConvShape,
+    padded: &[f32],
+    weights: &[f32],
+    bias: &[f32],
+    relu: bool,
+    out: &mut [f32],
+) {
+    let [_, ow] = shape.out;
+    let Ok(bias) = <&[f32; OC]>::try_from(&bias[..OC]) else {
+        return;
+    };
+    let (weights, _) = weights.as_chunks::<OC>();
+    let (out, _) = out.as_chunks_mut::<OC>();
+    for (oy, out_row) in out.chunks_exact_mut(ow).enumerate() {
+        let blocks = ow / P;
+        let (whole, rest) = out_row.split_at_mut(blocks * P);
+        for (block, target) in whole.chunks_exact_mut(P).enumerate() {
+            conv_block::<M, OC, P>(shape, padded, weights, bias, relu, oy, block * P, target);
+        }
+        for (i, target) in rest.chunks_exact_mut(1).enumerate() {
+            conv_block::<M, OC, 1>(
+                shape,
+                padded,
+                weights,
+                bias,
+                relu,
+                oy,
+                blocks * P + i,
+                target,
+            );
+        }
+    }
+}
+
+/// `P` output pixels of row `oy` from column `ox` on.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // one block of one convolution
+fn conv_block<M: MulAdd, const OC: usize, const P: usize>(
+    shape: &ConvShape,
+    padded: &[f32],
+    weights: &[[f32; OC]],
+    bias: &[f32; OC],
+    relu: bool,
+    oy: usize,
+    ox: usize,
+    target: &mut [[f32; OC]],
+) {
+    let ic = shape.in_channels;
+    let [kh, kw] = shape.kernel;
+    let [sy, sx] = shape.stride;
+    let row = shape.padded_width * ic;
+    let step = sx * ic;
+    let mut acc = [*bias; P];
+    for ky in 0..kh {
+        let input_row = &padded[(oy * sy + ky) * row..(oy * sy + ky + 1) * row];
+        for kx in 0..kw {
+            let taps = &weights[(ky * kw + kx) * ic..(ky * kw + kx + 1) * ic];
+            let first = (ox * sx + kx) * ic;
+            let span = &input_row[first..first + (P - 1) * step + ic];
+            for (c, w) in taps.iter().enumerate() {
+                // Loads (and their bounds checks) first, so that the multiply-adds below are
+                // one straight run the compiler turns into vector instructions.
+                let mut xs = [0.0f32; P];
+                for (p, x) in xs.iter_mut().enumerate() {
+                    *x = span[p * step + c];
+                }
+                for p in 0..P {
+                    for o in 0..OC {
+                        acc[p][o] = M::mul_add(xs[p], w[o], acc[p][o]);
+                    }
+                }
+            }
+        }
+    }
+    for (target, acc) in target.iter_mut().zip(&acc) {
+        for (t, &a) in target.iter_mut().zip(acc) {
+            *t = if relu { a.max(0.0) } else { a };
+        }
+    }
+}
+
+/// [`conv`] for any number of output channels: eight at a time, then the rest.
+#[inline(always)]
+pub(crate) fn conv_any<M: MulAdd>(
+    shape: &ConvShape,
+    padded: &[f32],
+    weights: &[f32],
+    bias: &[f32],
+    relu: bool,
+    out: &mut [f32],
+) {
+    let ic = shape.in_channels;
+    let oc = shape.out_channels;
+    let [kh, kw] = shape.kernel;
+    let [sy, sx] = shape.stride;
+    let [oh, ow] = shape.out;
+    let row = shape.padded_width * ic;
+    for oy in 0..oh {
+        for ox in 0..ow {
+            let target = &mut out[(oy * ow + ox) * oc..(oy * ow + ox + 1) * oc];
+            target.copy_from_slice(&bias[..oc]);
+            for ky in 0..kh {
+                let input_row = &padded[(oy * sy + ky) * row..(oy * sy + ky + 1) * row];
+                for kx in 0..kw {
+                    let pixel = &input_row[(ox * sx + kx) * ic..(ox * sx + kx + 1) * ic];
+                    let taps = &weights[(ky * kw + kx) * ic * oc..(ky * kw + kx + 1) * ic * oc];
+                    for (&x, w) in pixel.iter().zip(taps.chunks_exact(oc)) {
+                        for (t, &w) in target.iter_mut().zip(w) {
+                            *t = M::mul_add(x, w, *t);
+                        }
+                    }
+                }
+            }
+            if relu {
+                for t in target.iter_mut() {
+                    *t = t.max(0.0);
+                }
+            }
+        }
+    }
+}
+
+/// Max pooling of an NHWC map `[h][w][c]` (no padding), optionally clamped at zero
+/// (a ReLU before the pool, since both are monotone).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // a pooling window is this many numbers
+pub(crate) fn max_pool_nhwc(
+    input: &[f32],
+    [_, w, c]: [usize; 3],
+    kernel: [usize; 2],
+    stride: [usize; 2],
+    out_size: [usize; 2],
+    relu: bool,
+    out: &mut [f32],
+) {
+    let [oh, ow] = out_size;
+    for oy in 0..oh {
+        for ox in 0..ow {
+            let target = &mut out[(oy * ow + ox) * c..(oy * ow + ox + 1) * c];
+            target.fill(if relu { 0.0 } else { f32::NEG_INFINITY });
+            for ky in 0..kernel[0] {
+                for kx in 0..kernel[1] {
+                    let (y, x) = (oy * stride[0] + ky, ox * stride[1] + kx);
+                    let pixel = &input[(y * w + x) * c..(y * w + x + 1) * c];
+                    for (t, &v) in target.iter_mut().zip(pixel) {
+                        *t = t.max(v);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `y[n] = bias[n] + sum_k x[k] * w[n][k]` (`w` is `[n][k]`), four rows at a time so each
+/// load of `x` serves four rows, eight lanes per row.
+#[inline(always)]
+pub(crate) fn dense<M: MulAdd>(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
+    const LANES: usize = 8;
+    let k = x.len();
+    let (xs, x_tail) = x.as_chunks::<LANES>();
+    let whole = xs.len() * LANES;
+    let n = y.len();
+    let mut start = 0;
+    while start + 4 <= n {
+        let rows: [&[f32]; 4] =
+            core::array::from_fn(|r| &weights[(start + r) * k..(start + r + 1) * k]);
+        let chunks: [&[[f32; LANES]]; 4] = core::array::from_fn(|r| rows[r].as_chunks::<LANES>().0);
+        let mut acc = [[0.0f32; LANES]; 4];
+        let [c0, c1, c2, c3] = chunks;
+        for ((((xc, w0), w1), w2), w3) in xs.iter().zip(c0).zip(c1).zip(c2).zip(c3) {
+            let wc = [w0, w1, w2, w3];
+            for r in 0..4 {
+                for l in 0..LANES {
+                    acc[r][l] = M::mul_add(xc[l], wc[r][l], acc[r][l]);
+                }
+            }
+        }
+        for r in 0..4 {
+            let mut sum = horizontal_sum(&acc[r]);
+            for (j, &xv) in x_tail.iter().enumerate() {
+                sum = M::mul_add(xv, rows[r][whole + j], sum);
+            }
+            y[start + r] = sum + bias[start + r];
+        }
+        start += 4;
+    }
+    for row in start..n {
+        let w = &weights[row * k..(row + 1) * k];
+        let (chunks, _) = w.as_chunks::<LANES>();
+        let mut acc = [0.0f32; LANES];
+        for (xc, wc) in xs.iter().zip(chunks) {
+            for l in 0..LANES {
+                acc[l] = M::mul_add(xc[l], wc[l], acc[l]);
+            }
+        }
+        let mut sum = horizontal_sum(&acc);
+        for (j, &xv) in x_tail.iter().enumerate() {
+            sum = M::mul_add(xv, w[whole + j], sum);
+        }
+        y[row] = sum + bias[row];
+    }
+}
+
+#[inline(always)]
+fn horizontal_sum(lanes: &[f32; 8]) -> f32 {
+    ((lanes[0] + lanes[4]) + (lanes[1] + lanes[5]))
+        + ((lanes[2] + lanes[6]) + (lanes[3] + lanes[7]))
+}
+
+/// One LSTM step (ONNX gate order input, output, forget, cell): `gates` holds
+/// `W x + R h + Wb + Rb` for the 4H gates; updates `c` and writes `h`.
+#[inline(always)]
+pub(crate) fn lstm_cell(gates: &[f32], c: &mut [f32], h: &mut [f32]) {
+    let units = h.len();
+    for j in 0..units {
+        let input = sigmoid(gates[j]);
+        let output = sigmoid(gates[units + j]);
+        let forget = sigmoid(gates[2 * units + j]);
+        let candidate = gates[3 * units + j].tanh();
+        c[j] = forget * c[j] + input * candidate;
+        h[j] = output * c[j].tanh();
+    }
+}
+
+#[inline(always)]
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}

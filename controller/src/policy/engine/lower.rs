@@ -1,0 +1,1308 @@
+//! Lowering: an ONNX graph (already read and checked by tract) becomes a static list of
+//! [`Step`]s over buffers sized at load. Shapes are fixed by the controller's inputs, so every
+//! shape, index and weight layout is worked out here, once; running the plan is arithmetic
+//! and nothing else.
+//!
+//! The operators lowered are those of the paper's networks and their exports: Conv (any
+//! stride and padding, group 1), Relu, MaxPool, Flatten, Reshape, Squeeze, Unsqueeze,
+//! Transpose, Gather (constant indices), Concat, Gemm, MatMul (constant right side, with a
+//! following Add folded into the bias), one LSTM step (forward, default activations), the
+//! element-wise Add, Sub, Mul, Div, Equal with broadcasting, ReduceMax, ReduceSum, Cast to
+//! float, Identity and Constant. Anything else is refused with the reason, and the
+//! network runs under tract instead.
+
+use std::collections::HashMap;
+
+use tract_onnx::pb;
+
+use super::kernels::ConvShape;
+use super::plan::{BinaryOp, BufferId, MAX_RANK, ReduceOp, Step, Strided};
+
+/// Why a graph cannot be lowered (it then runs under tract).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Unsupported(pub String);
+
+type Lowered<T> = Result<T, Unsupported>;
+
+fn unsupported<T>(why: impl Into<String>) -> Lowered<T> {
+    Err(Unsupported(why.into()))
+}
+
+/// How a float value's numbers lie in its buffer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Layout {
+    /// Row-major in the ONNX shape's order.
+    Standard,
+    /// A `[1, C, H, W]` value stored as `[H][W][C]` (the convolution kernels' layout).
+    Nhwc,
+}
+
+#[derive(Clone, Debug)]
+enum Value {
+    /// Numbers at run time: floats, or booleans stored as 0.0 and 1.0.
+    Tensor {
+        buffer: BufferId,
+        shape: Vec<usize>,
+        layout: Layout,
+        boolean: bool,
+    },
+    /// Integers known at load (shapes, axes, indices).
+    Ints { values: Vec<i64>, shape: Vec<usize> },
+}
+
+/// A lowered graph: steps, the buffers they use (with constants filled in), where the
+/// inputs go and the outputs come from.
+#[derive(Debug)]
+pub(crate) struct Lowering {
+    pub steps: Vec<Step>,
+    pub buffers: Vec<Vec<f32>>,
+    pub inputs: Vec<(String, BufferId)>,
+    pub outputs: Vec<(String, BufferId, usize)>,
+}
+
+struct Lowerer<'g> {
+    graph: &'g pb::GraphProto,
+    values: HashMap<String, Value>,
+    buffers: Vec<Vec<f32>>,
+    steps: Vec<Step>,
+    /// How many nodes (and graph outputs) read each value.
+    readers: HashMap<String, usize>,
+    /// The step that wrote a value, for folding an Add or a Relu into it.
+    producer: HashMap<String, usize>,
+    /// Buffers whose contents are constants or graph inputs: never written by a step.
+    fixed: Vec<bool>,
+}
+
+/// Lowers `graph` for inputs of the given shapes.
+pub(crate) fn lower(graph: &pb::GraphProto, inputs: &[(&str, &[usize])]) -> Lowered<Lowering> {
+    let mut lowerer = Lowerer {
+        graph,
+        values: HashMap::new(),
+        buffers: Vec::new(),
+        steps: Vec::new(),
+        readers: HashMap::new(),
+        producer: HashMap::new(),
+        fixed: Vec::new(),
+    };
+    for node in &graph.node {
+        for input in node.input.iter().filter(|i| !i.is_empty()) {
+            *lowerer.readers.entry(input.clone()).or_default() += 1;
+        }
+    }
+    for output in &graph.output {
+        *lowerer.readers.entry(output.name.clone()).or_default() += 1;
+    }
+    for initializer in &graph.initializer {
+        let value = lowerer.constant(initializer)?;
+        lowerer.values.insert(initializer.name.clone(), value);
+    }
+    let mut input_buffers = Vec::new();
+    for (name, shape) in inputs {
+        let buffer = lowerer.buffer(shape.iter().product());
+        lowerer.fixed[buffer] = true;
+        lowerer.values.insert(
+            (*name).to_owned(),
+            Value::Tensor {
+                buffer,
+                shape: shape.to_vec(),
+                layout: Layout::Standard,
+                boolean: false,
+            },
+        );
+        input_buffers.push(((*name).to_owned(), buffer));
+    }
+    for node in &graph.node {
+        lowerer.node(node).map_err(|Unsupported(why)| {
+            Unsupported(format!("{} ({}): {why}", node.op_type, node.name))
+        })?;
+    }
+    let mut outputs = Vec::new();
+    for output in &graph.output {
+        let value = lowerer.standard(&output.name)?;
+        let Value::Tensor { buffer, shape, .. } = value else {
+            return unsupported(format!("output {} is a constant", output.name));
+        };
+        outputs.push((output.name.clone(), buffer, shape.iter().product()));
+    }
+    Ok(Lowering {
+        steps: lowerer.steps,
+        buffers: lowerer.buffers,
+        inputs: input_buffers,
+        outputs,
+    })
+}
+
+impl Lowerer<'_> {
+    fn buffer(&mut self, len: usize) -> BufferId {
+        self.buffers.push(vec![0.0; len]);
+        self.fixed.push(false);
+        self.buffers.len() - 1
+    }
+
+    fn constant(&mut self, tensor: &pb::TensorProto) -> Lowered<Value> {
+        const FLOAT: i32 = 1;
+        const INT64: i32 = 7;
+        if tensor.data_location == Some(1) {
+            return unsupported(format!(
+                "{} keeps its data in an external file",
+                tensor.name
+            ));
+        }
+        let shape = tensor
+            .dims
+            .iter()
+            .map(|&d| usize::try_from(d).map_err(|_| Unsupported(format!("dimension {d}"))))
+            .collect::<Lowered<Vec<usize>>>()?;
+        let count: usize = shape.iter().product();
+        match tensor.data_type {
+            FLOAT => {
+                let values: Vec<f32> = if tensor.raw_data.is_empty() {
+                    tensor.float_data.clone()
+                } else {
+                    tensor
+                        .raw_data
+                        .chunks_exact(4)
+                        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                        .collect()
+                };
+                if values.len() != count {
+                    return unsupported(format!(
+                        "{} holds {} numbers for shape {shape:?}",
+                        tensor.name,
+                        values.len()
+                    ));
+                }
+                let buffer = self.buffer(0);
+                self.buffers[buffer] = values;
+                self.fixed[buffer] = true;
+                Ok(Value::Tensor {
+                    buffer,
+                    shape,
+                    layout: Layout::Standard,
+                    boolean: false,
+                })
+            }
+            INT64 => {
+                let values: Vec<i64> = if tensor.raw_data.is_empty() {
+                    tensor.int64_data.clone()
+                } else {
+                    tensor
+                        .raw_data
+                        .chunks_exact(8)
+                        .map(|b| {
+                            i64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
+                        })
+                        .collect()
+                };
+                if values.len() != count {
+                    return unsupported(format!(
+                        "{} holds {} integers for shape {shape:?}",
+                        tensor.name,
+                        values.len()
+                    ));
+                }
+                Ok(Value::Ints { values, shape })
+            }
+            other => unsupported(format!("{} has element type {other}", tensor.name)),
+        }
+    }
+
+    fn value(&self, name: &str) -> Lowered<&Value> {
+        self.values
+            .get(name)
+            .ok_or_else(|| Unsupported(format!("{name} is not computed before it is used")))
+    }
+
+    /// The float tensor `name`, in the standard layout (converted from NHWC if need be).
+    fn standard(&mut self, name: &str) -> Lowered<Value> {
+        let value = self.value(name)?.clone();
+        match value {
+            Value::Tensor {
+                buffer,
+                ref shape,
+                layout: Layout::Nhwc,
+                boolean,
+            } => {
+                let (c, h, w) = (shape[1], shape[2], shape[3]);
+                let to = self.buffer(c * h * w);
+                self.steps.push(Step::NhwcToNchw {
+                    from: buffer,
+                    to,
+                    size: [h, w, c],
+                });
+                let converted = Value::Tensor {
+                    buffer: to,
+                    shape: shape.clone(),
+                    layout: Layout::Standard,
+                    boolean,
+                };
+                self.values.insert(name.to_owned(), converted.clone());
+                Ok(converted)
+            }
+            other => Ok(other),
+        }
+    }
+
+    fn tensor(&mut self, name: &str) -> Lowered<(BufferId, Vec<usize>)> {
+        match self.standard(name)? {
+            Value::Tensor { buffer, shape, .. } => Ok((buffer, shape)),
+            Value::Ints { .. } => unsupported(format!("{name} is an integer constant")),
+        }
+    }
+
+    fn ints(&self, name: &str) -> Lowered<Vec<i64>> {
+        match self.value(name)? {
+            Value::Ints { values, .. } => Ok(values.clone()),
+            Value::Tensor { .. } => unsupported(format!("{name} must be an integer constant")),
+        }
+    }
+
+    /// A float constant's numbers (weights).
+    fn weights(&self, name: &str) -> Lowered<(Vec<f32>, Vec<usize>)> {
+        match self.value(name)? {
+            Value::Tensor {
+                buffer,
+                shape,
+                layout: Layout::Standard,
+                boolean: false,
+            } if self.fixed[*buffer] && !self.is_graph_input(name) => {
+                Ok((self.buffers[*buffer].clone(), shape.clone()))
+            }
+            _ => unsupported(format!("{name} must be a float constant")),
+        }
+    }
+
+    fn is_graph_input(&self, name: &str) -> bool {
+        self.graph.input.iter().any(|i| i.name == name)
+            && !self.graph.initializer.iter().any(|i| i.name == name)
+    }
+
+    fn define(&mut self, name: &str, value: Value) {
+        self.values.insert(name.to_owned(), value);
+    }
+
+    fn define_tensor(&mut self, name: &str, buffer: BufferId, shape: Vec<usize>, layout: Layout) {
+        self.define(
+            name,
+            Value::Tensor {
+                buffer,
+                shape,
+                layout,
+                boolean: false,
+            },
+        );
+    }
+
+    fn push(&mut self, output: &str, step: Step) {
+        self.producer.insert(output.to_owned(), self.steps.len());
+        self.steps.push(step);
+    }
+
+    fn single_reader(&self, name: &str) -> bool {
+        self.readers.get(name).copied() == Some(1)
+    }
+
+    fn node(&mut self, node: &pb::NodeProto) -> Lowered<()> {
+        if !node.domain.is_empty() && node.domain != "ai.onnx" {
+            return unsupported(format!("operator domain {}", node.domain));
+        }
+        let attributes = Attributes(&node.attribute);
+        let input = |i: usize| {
+            node.input
+                .get(i)
+                .map(String::as_str)
+                .filter(|s| !s.is_empty())
+        };
+        let first = || input(0).ok_or_else(|| Unsupported("no input".into()));
+        let output = node
+            .output
+            .first()
+            .map(String::as_str)
+            .ok_or_else(|| Unsupported("no output".into()))?;
+        match node.op_type.as_str() {
+            "Constant" => {
+                let Some(tensor) = attributes.tensor("value") else {
+                    return unsupported("a Constant without a tensor value");
+                };
+                let value = self.constant(tensor)?;
+                self.define(output, value);
+            }
+            "Identity" => {
+                let value = self.value(first()?)?.clone();
+                self.define(output, value);
+            }
+            "Conv" => self.conv(node, &attributes, first()?, output)?,
+            "MaxPool" => self.max_pool(&attributes, first()?, output)?,
+            "Relu" => self.relu(first()?, output)?,
+            "Flatten" => {
+                let (buffer, shape) = self.tensor(first()?)?;
+                let axis = normalise_axis(attributes.int("axis").unwrap_or(1), shape.len() + 1)?;
+                let outer: usize = shape[..axis].iter().product();
+                let inner: usize = shape[axis..].iter().product();
+                self.define_tensor(output, buffer, vec![outer, inner], Layout::Standard);
+            }
+            "Reshape" => {
+                let (buffer, shape) = self.tensor(first()?)?;
+                let target = self.ints(input(1).ok_or_else(|| Unsupported("no shape".into()))?)?;
+                let reshaped = reshape(
+                    &shape,
+                    &target,
+                    attributes.int("allowzero").unwrap_or(0) != 0,
+                )?;
+                self.alias(first()?, output, buffer, reshaped)?;
+            }
+            "Squeeze" | "Unsqueeze" => {
+                let value = self.standard(first()?)?;
+                let axes = match input(1) {
+                    Some(name) => self.ints(name)?,
+                    None => attributes.ints("axes").unwrap_or_default(),
+                };
+                let squeeze = node.op_type == "Squeeze";
+                match value {
+                    Value::Tensor { buffer, shape, .. } => {
+                        let reshaped = squeeze_shape(&shape, &axes, squeeze)?;
+                        self.alias(first()?, output, buffer, reshaped)?;
+                    }
+                    Value::Ints { values, shape } => {
+                        let reshaped = squeeze_shape(&shape, &axes, squeeze)?;
+                        self.define(
+                            output,
+                            Value::Ints {
+                                values,
+                                shape: reshaped,
+                            },
+                        );
+                    }
+                }
+            }
+            "Transpose" => self.transpose(&attributes, first()?, output)?,
+            "Gather" => self.gather(&attributes, first()?, input(1), output)?,
+            "Concat" => self.concat(node, &attributes, output)?,
+            "Gemm" => self.gemm(node, &attributes, output)?,
+            "MatMul" => self.matmul(first()?, input(1), output)?,
+            "Add" | "Sub" | "Mul" | "Div" | "Equal" => {
+                self.binary(&node.op_type, first()?, input(1), output)?
+            }
+            "ReduceMax" | "ReduceSum" => {
+                self.reduce(node, &attributes, first()?, input(1), output)?
+            }
+            "Cast" => {
+                if attributes.int("to") != Some(1) {
+                    return unsupported("a cast to anything but float");
+                }
+                match self.standard(first()?)? {
+                    Value::Tensor { buffer, shape, .. } => {
+                        self.define_tensor(output, buffer, shape, Layout::Standard)
+                    }
+                    Value::Ints { .. } => return unsupported("a cast of integers"),
+                }
+            }
+            "LSTM" => self.lstm(node, &attributes)?,
+            other => return unsupported(format!("the operator {other} is not in the engine")),
+        }
+        Ok(())
+    }
+
+    /// `output` is `input`'s numbers under another shape: no copy.
+    fn alias(
+        &mut self,
+        input: &str,
+        output: &str,
+        buffer: BufferId,
+        shape: Vec<usize>,
+    ) -> Lowered<()> {
+        let boolean = matches!(self.value(input)?, Value::Tensor { boolean: true, .. });
+        self.define(
+            output,
+            Value::Tensor {
+                buffer,
+                shape,
+                layout: Layout::Standard,
+                boolean,
+            },
+        );
+        Ok(())
+    }
+
+    fn conv(
+        &mut self,
+        node: &pb::NodeProto,
+        attributes: &Attributes<'_>,
+        input: &str,
+        output: &str,
+    ) -> Lowered<()> {
+        let value = self.value(input)?.clone();
+        let Value::Tensor {
+            buffer,
+            shape,
+            layout,
+            boolean: false,
+        } = value
+        else {
+            return unsupported("a convolution of something that is not a float tensor");
+        };
+        let weights_name = node
+            .input
+            .get(1)
+            .ok_or_else(|| Unsupported("no weights".into()))?;
+        let (weights, weight_shape) = self.weights(weights_name)?;
+        let [n, c, h, w] = shape[..] else {
+            return unsupported(format!("input shape {shape:?}: only 2-D convolutions"));
+        };
+        let [oc, wc, kh, kw] = weight_shape[..] else {
+            return unsupported(format!("weight shape {weight_shape:?}"));
+        };
+        if n != 1 || wc != c {
+            return unsupported(format!("batch {n}, {c} channels for weights of {wc}"));
+        }
+        if attributes.int("group").unwrap_or(1) != 1 {
+            return unsupported("grouped convolutions");
+        }
+        if attributes
+            .ints("dilations")
+            .is_some_and(|d| d.iter().any(|&d| d != 1))
+        {
+            return unsupported("dilated convolutions");
+        }
+        if attributes.string("auto_pad").is_some_and(|p| p != "NOTSET") {
+            return unsupported("auto_pad");
+        }
+        if let Some(kernel) = attributes.ints("kernel_shape")
+            && kernel != [kh as i64, kw as i64]
+        {
+            return unsupported("kernel_shape differs from the weights");
+        }
+        let strides = positive(attributes.ints("strides").unwrap_or(vec![1, 1]), 2)?;
+        let pads = non_negative(attributes.ints("pads").unwrap_or(vec![0; 4]), 4)?;
+        let (padded_h, padded_w) = (h + pads[0] + pads[2], w + pads[1] + pads[3]);
+        if padded_h < kh || padded_w < kw {
+            return unsupported("a kernel larger than its padded input");
+        }
+        let out = [
+            (padded_h - kh) / strides[0] + 1,
+            (padded_w - kw) / strides[1] + 1,
+        ];
+        let bias = match node.input.get(2).filter(|s| !s.is_empty()) {
+            Some(name) => {
+                let (bias, bias_shape) = self.weights(name)?;
+                if bias_shape != [oc] {
+                    return unsupported(format!("bias shape {bias_shape:?}"));
+                }
+                bias
+            }
+            None => vec![0.0; oc],
+        };
+        // [oc][c][ky][kx] -> [ky][kx][c][oc]
+        let mut relaid = vec![0.0; weights.len()];
+        for o in 0..oc {
+            for i in 0..c {
+                for y in 0..kh {
+                    for x in 0..kw {
+                        relaid[((y * kw + x) * c + i) * oc + o] =
+                            weights[((o * c + i) * kh + y) * kw + x];
+                    }
+                }
+            }
+        }
+        let padded = self.buffer(padded_h * padded_w * c);
+        self.steps.push(Step::Pad {
+            from: buffer,
+            to: padded,
+            size: [h, w, c],
+            origin: [pads[0], pads[1]],
+            padded_width: padded_w,
+            from_nchw: layout == Layout::Standard,
+        });
+        let to = self.buffer(out[0] * out[1] * oc);
+        let shape = ConvShape {
+            padded_width: padded_w,
+            in_channels: c,
+            out_channels: oc,
+            kernel: [kh, kw],
+            stride: [strides[0], strides[1]],
+            out,
+        };
+        self.push(
+            output,
+            Step::Conv {
+                padded,
+                weights: relaid,
+                bias,
+                shape,
+                relu: false,
+                out: to,
+            },
+        );
+        self.define_tensor(output, to, vec![1, oc, out[0], out[1]], Layout::Nhwc);
+        Ok(())
+    }
+
+    fn max_pool(&mut self, attributes: &Attributes<'_>, input: &str, output: &str) -> Lowered<()> {
+        let value = self.value(input)?.clone();
+        let Value::Tensor {
+            buffer,
+            shape,
+            layout,
+            boolean: false,
+        } = value
+        else {
+            return unsupported("pooling something that is not a float tensor");
+        };
+        if layout != Layout::Nhwc {
+            return unsupported("pooling a map that no convolution made");
+        }
+        let kernel = positive(attributes.ints("kernel_shape").unwrap_or_default(), 2)?;
+        let strides = positive(attributes.ints("strides").unwrap_or(vec![1, 1]), 2)?;
+        let pads = attributes.ints("pads").unwrap_or(vec![0; 4]);
+        if pads.iter().any(|&p| p != 0)
+            || attributes.int("ceil_mode").unwrap_or(0) != 0
+            || attributes
+                .ints("dilations")
+                .is_some_and(|d| d.iter().any(|&d| d != 1))
+            || attributes.int("storage_order").unwrap_or(0) != 0
+            || attributes.string("auto_pad").is_some_and(|p| p != "NOTSET")
+        {
+            return unsupported("pooling with padding, ceil mode, dilation or storage order");
+        }
+        let (c, h, w) = (shape[1], shape[2], shape[3]);
+        if h < kernel[0] || w < kernel[1] {
+            return unsupported("a pooling window larger than its input");
+        }
+        let out = [
+            (h - kernel[0]) / strides[0] + 1,
+            (w - kernel[1]) / strides[1] + 1,
+        ];
+        let to = self.buffer(out[0] * out[1] * c);
+        self.push(
+            output,
+            Step::MaxPool {
+                from: buffer,
+                to,
+                size: [h, w, c],
+                kernel: [kernel[0], kernel[1]],
+                stride: [strides[0], strides[1]],
+                out,
+            },
+        );
+        self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
+        Ok(())
+    }
+
+    /// A Relu right after a convolution or a dense layer that only it reads is folded into
+    /// that step; otherwise it is a step of its own.
+    fn relu(&mut self, input: &str, output: &str) -> Lowered<()> {
+        if self.single_reader(input)
+            && let Some(&index) = self.producer.get(input)
+        {
+            let folded = match &mut self.steps[index] {
+                Step::Conv { relu, .. } | Step::Dense { relu, .. } => {
+                    *relu = true;
+                    true
+                }
+                _ => false,
+            };
+            if folded {
+                let value = self.value(input)?.clone();
+                self.producer.insert(output.to_owned(), index);
+                self.define(output, value);
+                return Ok(());
+            }
+        }
+        let value = self.value(input)?.clone();
+        let Value::Tensor {
+            buffer,
+            shape,
+            layout,
+            boolean: false,
+        } = value
+        else {
+            return unsupported("a Relu of something that is not a float tensor");
+        };
+        let len = shape.iter().product();
+        let to = self.buffer(len);
+        self.push(
+            output,
+            Step::Relu {
+                from: buffer,
+                to,
+                len,
+            },
+        );
+        self.define_tensor(output, to, shape, layout);
+        Ok(())
+    }
+
+    fn transpose(&mut self, attributes: &Attributes<'_>, input: &str, output: &str) -> Lowered<()> {
+        let (buffer, shape) = self.tensor(input)?;
+        let rank = shape.len();
+        let perm: Vec<usize> = match attributes.ints("perm") {
+            Some(perm) => perm
+                .iter()
+                .map(|&p| usize::try_from(p).map_err(|_| Unsupported(format!("perm {p}"))))
+                .collect::<Lowered<_>>()?,
+            None => (0..rank).rev().collect(),
+        };
+        let mut sorted = perm.clone();
+        sorted.sort_unstable();
+        if sorted != (0..rank).collect::<Vec<_>>() {
+            return unsupported(format!("perm {perm:?} for rank {rank}"));
+        }
+        let transposed: Vec<usize> = perm.iter().map(|&p| shape[p]).collect();
+        // Moving only dimensions of size 1 leaves the numbers where they are.
+        let moved: Vec<usize> = perm.iter().copied().filter(|&p| shape[p] != 1).collect();
+        if moved.windows(2).all(|w| w[0] < w[1]) {
+            return self.alias(input, output, buffer, transposed);
+        }
+        if rank > MAX_RANK {
+            return unsupported(format!("rank {rank}"));
+        }
+        let strides = standard_strides(&shape);
+        let to = self.buffer(shape.iter().product());
+        let source = Strided::new(
+            &transposed,
+            &perm.iter().map(|&p| strides[p]).collect::<Vec<_>>(),
+        );
+        self.push(
+            output,
+            Step::Gather {
+                from: buffer,
+                source,
+                to,
+            },
+        );
+        self.define_tensor(output, to, transposed, Layout::Standard);
+        Ok(())
+    }
+
+    fn gather(
+        &mut self,
+        attributes: &Attributes<'_>,
+        input: &str,
+        indices: Option<&str>,
+        output: &str,
+    ) -> Lowered<()> {
+        let (buffer, shape) = self.tensor(input)?;
+        let indices_name = indices.ok_or_else(|| Unsupported("no indices".into()))?;
+        let Value::Ints {
+            values,
+            shape: index_shape,
+        } = self.value(indices_name)?.clone()
+        else {
+            return unsupported("indices that are not constants");
+        };
+        let axis = normalise_axis(attributes.int("axis").unwrap_or(0), shape.len())?;
+        let dim = shape[axis];
+        let picked = values
+            .iter()
+            .map(|&i| {
+                let i = if i < 0 { i + dim as i64 } else { i };
+                usize::try_from(i)
+                    .ok()
+                    .filter(|&i| i < dim)
+                    .ok_or_else(|| Unsupported(format!("index {i} of {dim}")))
+            })
+            .collect::<Lowered<Vec<usize>>>()?;
+        let mut gathered: Vec<usize> = shape[..axis].to_vec();
+        gathered.extend(&index_shape);
+        gathered.extend(&shape[axis + 1..]);
+        let outer: usize = shape[..axis].iter().product();
+        let inner: usize = shape[axis + 1..].iter().product();
+        if outer * picked.len() > 4096 {
+            return unsupported("a gather of more than 4096 slices");
+        }
+        let to = self.buffer(gathered.iter().product());
+        for o in 0..outer {
+            for (n, &i) in picked.iter().enumerate() {
+                self.steps.push(Step::Copy {
+                    from: buffer,
+                    from_offset: (o * dim + i) * inner,
+                    to,
+                    to_offset: (o * picked.len() + n) * inner,
+                    len: inner,
+                });
+            }
+        }
+        self.producer
+            .insert(output.to_owned(), self.steps.len().saturating_sub(1));
+        self.define_tensor(output, to, gathered, Layout::Standard);
+        Ok(())
+    }
+
+    fn concat(
+        &mut self,
+        node: &pb::NodeProto,
+        attributes: &Attributes<'_>,
+        output: &str,
+    ) -> Lowered<()> {
+        let parts = node
+            .input
+            .iter()
+            .filter(|i| !i.is_empty())
+            .map(|name| self.tensor(name))
+            .collect::<Lowered<Vec<_>>>()?;
+        let Some((_, first)) = parts.first() else {
+            return unsupported("a Concat of nothing");
+        };
+        let axis = normalise_axis(attributes.int("axis").unwrap_or(0), first.len())?;
+        let mut joined = first.clone();
+        joined[axis] = 0;
+        for (_, shape) in &parts {
+            let same = shape.len() == first.len()
+                && shape
+                    .iter()
+                    .zip(first)
+                    .enumerate()
+                    .all(|(d, (a, b))| d == axis || a == b);
+            if !same {
+                return unsupported(format!("concatenating {shape:?} to {first:?}"));
+            }
+            joined[axis] += shape[axis];
+        }
+        let outer: usize = first[..axis].iter().product();
+        let inner: usize = first[axis + 1..].iter().product();
+        if outer * parts.len() > 4096 {
+            return unsupported("a concatenation of more than 4096 slices");
+        }
+        let to = self.buffer(joined.iter().product());
+        let row = joined[axis] * inner;
+        for o in 0..outer {
+            let mut at = 0;
+            for (buffer, shape) in &parts {
+                let len = shape[axis] * inner;
+                self.steps.push(Step::Copy {
+                    from: *buffer,
+                    from_offset: o * len,
+                    to,
+                    to_offset: o * row + at,
+                    len,
+                });
+                at += len;
+            }
+        }
+        self.producer
+            .insert(output.to_owned(), self.steps.len().saturating_sub(1));
+        self.define_tensor(output, to, joined, Layout::Standard);
+        Ok(())
+    }
+
+    fn gemm(
+        &mut self,
+        node: &pb::NodeProto,
+        attributes: &Attributes<'_>,
+        output: &str,
+    ) -> Lowered<()> {
+        let a = node
+            .input
+            .first()
+            .ok_or_else(|| Unsupported("no A".into()))?;
+        let b = node
+            .input
+            .get(1)
+            .ok_or_else(|| Unsupported("no B".into()))?;
+        if attributes.int("transA").unwrap_or(0) != 0 {
+            return unsupported("transA");
+        }
+        let (x, x_shape) = self.tensor(a)?;
+        let [m, k] = x_shape[..] else {
+            return unsupported(format!("A of shape {x_shape:?}"));
+        };
+        let (weights, w_shape) = self.weights(b)?;
+        let transposed = attributes.int("transB").unwrap_or(0) != 0;
+        let (wk, n) = match (&w_shape[..], transposed) {
+            (&[rows, cols], false) => (rows, cols),
+            (&[rows, cols], true) => (cols, rows),
+            _ => return unsupported(format!("B of shape {w_shape:?}")),
+        };
+        if wk != k {
+            return unsupported(format!("A {x_shape:?} times B {w_shape:?}"));
+        }
+        let alpha = attributes.float("alpha").unwrap_or(1.0);
+        let beta = attributes.float("beta").unwrap_or(1.0);
+        let mut relaid = vec![0.0; n * k];
+        for row in 0..n {
+            for col in 0..k {
+                let w = if transposed {
+                    weights[row * k + col]
+                } else {
+                    weights[col * n + row]
+                };
+                relaid[row * k + col] = alpha * w;
+            }
+        }
+        let bias = match node.input.get(2).filter(|s| !s.is_empty()) {
+            Some(name) => {
+                let (c, c_shape) = self.weights(name)?;
+                row_vector(&c, &c_shape, n)?
+                    .into_iter()
+                    .map(|v| beta * v)
+                    .collect()
+            }
+            None => vec![0.0; n],
+        };
+        let to = self.buffer(m * n);
+        self.push(
+            output,
+            Step::Dense {
+                from: x,
+                weights: relaid,
+                bias,
+                rows: m,
+                relu: false,
+                to,
+            },
+        );
+        self.define_tensor(output, to, vec![m, n], Layout::Standard);
+        Ok(())
+    }
+
+    fn matmul(&mut self, a: &str, b: Option<&str>, output: &str) -> Lowered<()> {
+        let (x, x_shape) = self.tensor(a)?;
+        let (weights, w_shape) = self.weights(b.ok_or_else(|| Unsupported("no B".into()))?)?;
+        let [k, n] = w_shape[..] else {
+            return unsupported(format!("B of shape {w_shape:?}"));
+        };
+        let Some((&xk, leading)) = x_shape.split_last() else {
+            return unsupported("A is a scalar");
+        };
+        if xk != k {
+            return unsupported(format!("A {x_shape:?} times B {w_shape:?}"));
+        }
+        let m: usize = leading.iter().product();
+        let mut relaid = vec![0.0; n * k];
+        for row in 0..n {
+            for col in 0..k {
+                relaid[row * k + col] = weights[col * n + row];
+            }
+        }
+        let to = self.buffer(m * n);
+        self.push(
+            output,
+            Step::Dense {
+                from: x,
+                weights: relaid,
+                bias: vec![0.0; n],
+                rows: m,
+                relu: false,
+                to,
+            },
+        );
+        let mut shape = leading.to_vec();
+        shape.push(n);
+        self.define_tensor(output, to, shape, Layout::Standard);
+        Ok(())
+    }
+
+    fn binary(&mut self, op: &str, a: &str, b: Option<&str>, output: &str) -> Lowered<()> {
+        let b = b.ok_or_else(|| Unsupported("one operand".into()))?;
+        // A constant row added to a dense layer's output that only it reads: into the bias.
+        if op == "Add" {
+            for (product, addend) in [(a, b), (b, a)] {
+                if self.fold_bias(product, addend, output)? {
+                    return Ok(());
+                }
+            }
+        }
+        let (a_buffer, a_shape) = self.tensor(a)?;
+        let (b_buffer, b_shape) = self.tensor(b)?;
+        let rank = a_shape.len().max(b_shape.len());
+        if rank > MAX_RANK {
+            return unsupported(format!("rank {rank}"));
+        }
+        let pad = |s: &[usize]| {
+            let mut padded = vec![1; rank - s.len()];
+            padded.extend(s);
+            padded
+        };
+        let (a_full, b_full) = (pad(&a_shape), pad(&b_shape));
+        let mut shape = Vec::with_capacity(rank);
+        for (&x, &y) in a_full.iter().zip(&b_full) {
+            shape.push(match (x, y) {
+                _ if x == y => x,
+                (1, y) => y,
+                (x, 1) => x,
+                _ => return unsupported(format!("broadcasting {a_shape:?} with {b_shape:?}")),
+            });
+        }
+        let broadcast = |full: &[usize]| {
+            let strides = standard_strides(full);
+            full.iter()
+                .zip(&strides)
+                .map(|(&d, &s)| if d == 1 { 0 } else { s })
+                .collect::<Vec<_>>()
+        };
+        let op = match op {
+            "Add" => BinaryOp::Add,
+            "Sub" => BinaryOp::Sub,
+            "Mul" => BinaryOp::Mul,
+            "Div" => BinaryOp::Div,
+            _ => BinaryOp::Equal,
+        };
+        let to = self.buffer(shape.iter().product());
+        self.push(
+            output,
+            Step::Binary {
+                op,
+                a: a_buffer,
+                a_index: Strided::new(&shape, &broadcast(&a_full)),
+                b: b_buffer,
+                b_index: Strided::new(&shape, &broadcast(&b_full)),
+                to,
+            },
+        );
+        self.define(
+            output,
+            Value::Tensor {
+                buffer: to,
+                shape,
+                layout: Layout::Standard,
+                boolean: op == BinaryOp::Equal,
+            },
+        );
+        Ok(())
+    }
+
+    fn fold_bias(&mut self, product: &str, addend: &str, output: &str) -> Lowered<bool> {
+        if !self.single_reader(product) {
+            return Ok(false);
+        }
+        let Some(&index) = self.producer.get(product) else {
+            return Ok(false);
+        };
+        let Ok((constant, shape)) = self.weights(addend) else {
+            return Ok(false);
+        };
+        let Step::Dense {
+            bias, relu: false, ..
+        } = &self.steps[index]
+        else {
+            return Ok(false);
+        };
+        let Ok(row) = row_vector(&constant, &shape, bias.len()) else {
+            return Ok(false);
+        };
+        if let Step::Dense { bias, .. } = &mut self.steps[index] {
+            for (b, r) in bias.iter_mut().zip(row) {
+                *b += r;
+            }
+        }
+        let value = self.value(product)?.clone();
+        self.producer.insert(output.to_owned(), index);
+        self.define(output, value);
+        Ok(true)
+    }
+
+    fn reduce(
+        &mut self,
+        node: &pb::NodeProto,
+        attributes: &Attributes<'_>,
+        input: &str,
+        axes_input: Option<&str>,
+        output: &str,
+    ) -> Lowered<()> {
+        let (buffer, shape) = self.tensor(input)?;
+        let rank = shape.len();
+        if rank > MAX_RANK {
+            return unsupported(format!("rank {rank}"));
+        }
+        let axes = match axes_input {
+            Some(name) => self.ints(name)?,
+            None => attributes.ints("axes").unwrap_or_default(),
+        };
+        let axes = if axes.is_empty() {
+            if attributes.int("noop_with_empty_axes").unwrap_or(0) != 0 {
+                return self.alias(input, output, buffer, shape);
+            }
+            (0..rank).collect::<Vec<_>>()
+        } else {
+            axes.iter()
+                .map(|&a| normalise_axis(a, rank))
+                .collect::<Lowered<Vec<_>>>()?
+        };
+        let keep = attributes.int("keepdims").unwrap_or(1) != 0;
+        let reduced: Vec<usize> = (0..rank)
+            .filter_map(|d| match (axes.contains(&d), keep) {
+                (true, true) => Some(1),
+                (true, false) => None,
+                (false, _) => Some(shape[d]),
+            })
+            .collect();
+        // Iterate the input in order; each element lands at its reduced position.
+        let kept: Vec<usize> = (0..rank)
+            .map(|d| if axes.contains(&d) { 1 } else { shape[d] })
+            .collect();
+        let kept_strides = standard_strides(&kept);
+        let target: Vec<usize> = (0..rank)
+            .map(|d| {
+                if axes.contains(&d) {
+                    0
+                } else {
+                    kept_strides[d]
+                }
+            })
+            .collect();
+        let op = if node.op_type == "ReduceMax" {
+            ReduceOp::Max
+        } else {
+            ReduceOp::Sum
+        };
+        let to = self.buffer(kept.iter().product());
+        self.push(
+            output,
+            Step::Reduce {
+                op,
+                from: buffer,
+                target: Strided::new(&shape, &target),
+                to,
+            },
+        );
+        self.define_tensor(output, to, reduced, Layout::Standard);
+        Ok(())
+    }
+
+    fn lstm(&mut self, node: &pb::NodeProto, attributes: &Attributes<'_>) -> Lowered<()> {
+        let input = |i: usize| {
+            node.input
+                .get(i)
+                .map(String::as_str)
+                .filter(|s| !s.is_empty())
+        };
+        let output = |i: usize| {
+            node.output
+                .get(i)
+                .map(String::as_str)
+                .filter(|s| !s.is_empty())
+        };
+        if attributes
+            .string("direction")
+            .is_some_and(|d| d != "forward")
+            || attributes.strings("activations").is_some()
+            || attributes.float("clip").is_some()
+            || attributes.int("input_forget").unwrap_or(0) != 0
+            || attributes.int("layout").unwrap_or(0) != 0
+        {
+            return unsupported("an LSTM other than forward with default activations");
+        }
+        if input(4).is_some() || input(7).is_some() {
+            return unsupported("sequence lengths or peepholes");
+        }
+        let (x, x_shape) = self.tensor(input(0).ok_or_else(|| Unsupported("no X".into()))?)?;
+        let [1, 1, features] = x_shape[..] else {
+            return unsupported(format!("X of shape {x_shape:?}: one step of one sequence"));
+        };
+        let (w, w_shape) = self.weights(input(1).ok_or_else(|| Unsupported("no W".into()))?)?;
+        let (r, r_shape) = self.weights(input(2).ok_or_else(|| Unsupported("no R".into()))?)?;
+        let units = r_shape.last().copied().unwrap_or(0);
+        if w_shape != [1, 4 * units, features] || r_shape != [1, 4 * units, units] {
+            return unsupported(format!("W {w_shape:?}, R {r_shape:?}"));
+        }
+        if let Some(hidden) = attributes.int("hidden_size")
+            && hidden != units as i64
+        {
+            return unsupported("hidden_size differs from R");
+        }
+        let gates = 4 * units;
+        let mut bias = vec![0.0; gates];
+        if let Some(name) = input(3) {
+            let (b, b_shape) = self.weights(name)?;
+            if b_shape != [1, 2 * gates] {
+                return unsupported(format!("B of shape {b_shape:?}"));
+            }
+            for (g, value) in bias.iter_mut().enumerate() {
+                *value = b[g] + b[gates + g];
+            }
+        }
+        // One dense layer on [x, h]: weights [gate][x ..., h ...].
+        let width = features + units;
+        let mut weights = vec![0.0; gates * width];
+        for g in 0..gates {
+            weights[g * width..g * width + features]
+                .copy_from_slice(&w[g * features..(g + 1) * features]);
+            weights[g * width + features..(g + 1) * width]
+                .copy_from_slice(&r[g * units..(g + 1) * units]);
+        }
+        let state = |lowerer: &mut Self, index: usize| -> Lowered<BufferId> {
+            match input(index) {
+                Some(name) => {
+                    let (buffer, shape) = lowerer.tensor(name)?;
+                    if shape != [1, 1, units] {
+                        return unsupported(format!("initial state of shape {shape:?}"));
+                    }
+                    Ok(buffer)
+                }
+                None => {
+                    let zero = lowerer.buffer(units);
+                    lowerer.fixed[zero] = true;
+                    Ok(zero)
+                }
+            }
+        };
+        let (h_in, c_in) = (state(self, 5)?, state(self, 6)?);
+        let joined = self.buffer(width);
+        let gate_values = self.buffer(gates);
+        let (h_out, c_out) = (self.buffer(units), self.buffer(units));
+        self.steps.push(Step::Lstm {
+            x,
+            h_in,
+            c_in,
+            joined,
+            weights,
+            bias,
+            gates: gate_values,
+            h_out,
+            c_out,
+        });
+        if let Some(y) = output(0) {
+            self.define_tensor(y, h_out, vec![1, 1, 1, units], Layout::Standard);
+        }
+        if let Some(y_h) = output(1) {
+            self.define_tensor(y_h, h_out, vec![1, 1, units], Layout::Standard);
+        }
+        if let Some(y_c) = output(2) {
+            self.define_tensor(y_c, c_out, vec![1, 1, units], Layout::Standard);
+        }
+        Ok(())
+    }
+}
+
+/// A node's attributes by name.
+struct Attributes<'a>(&'a [pb::AttributeProto]);
+
+impl Attributes<'_> {
+    fn find(&self, name: &str) -> Option<&pb::AttributeProto> {
+        self.0.iter().find(|a| a.name == name)
+    }
+
+    fn int(&self, name: &str) -> Option<i64> {
+        self.find(name).map(|a| a.i)
+    }
+
+    fn float(&self, name: &str) -> Option<f32> {
+        self.find(name).map(|a| a.f)
+    }
+
+    fn ints(&self, name: &str) -> Option<Vec<i64>> {
+        self.find(name).map(|a| a.ints.clone())
+    }
+
+    fn string(&self, name: &str) -> Option<String> {
+        self.find(name)
+            .map(|a| String::from_utf8_lossy(&a.s).into_owned())
+    }
+
+    fn strings(&self, name: &str) -> Option<usize> {
+        self.find(name).map(|a| a.strings.len())
+    }
+
+    fn tensor(&self, name: &str) -> Option<&pb::TensorProto> {
+        self.find(name).and_then(|a| a.t.as_ref())
+    }
+}
+
+fn normalise_axis(axis: i64, rank: usize) -> Lowered<usize> {
+    let axis = if axis < 0 { axis + rank as i64 } else { axis };
+    usize::try_from(axis)
+        .ok()
+        .filter(|&a| a < rank.max(1))
+        .ok_or_else(|| Unsupported(format!("axis {axis} of rank {rank}")))
+}
+
+fn positive(values: Vec<i64>, count: usize) -> Lowered<Vec<usize>> {
+    if values.len() != count || values.iter().any(|&v| v < 1) {
+        return unsupported(format!("{values:?}"));
+    }
+    Ok(values.into_iter().map(|v| v as usize).collect())
+}
+
+fn non_negative(values: Vec<i64>, count: usize) -> Lowered<Vec<usize>> {
+    if values.len() != count || values.iter().any(|&v| v < 0) {
+        return unsupported(format!("{values:?}"));
+    }
+    Ok(values.into_iter().map(|v| v as usize).collect())
+}
+
+fn standard_strides(shape: &[usize]) -> Vec<usize> {
+    let mut strides = vec![1; shape.len()];
+    for d in (0..shape.len().saturating_sub(1)).rev() {
+        strides[d] = strides[d + 1] * shape[d + 1];
+    }
+    strides
+}
+
+/// A constant's numbers as a row of `n` (shape `[n]`, `[1, n]` or a scalar).
+fn row_vector(values: &[f32], shape: &[usize], n: usize) -> Lowered<Vec<f32>> {
+    match shape {
+        [] | [1] | [1, 1] if values.len() == 1 => Ok(vec![values[0]; n]),
+        [m] | [1, m] if *m == n => Ok(values.to_vec()),
+        _ => unsupported(format!("a bias of shape {shape:?} for {n} outputs")),
+    }
+}
+
+fn reshape(shape: &[usize], target: &[i64], allow_zero: bool) -> Lowered<Vec<usize>> {
+    let total: usize = shape.iter().product();
+    let mut out = Vec::with_capacity(target.len());
+    let mut infer = None;
+    for (d, &t) in target.iter().enumerate() {
+        match t {
+            -1 if infer.is_none() => {
+                infer = Some(d);
+                out.push(1);
+            }
+            0 if !allow_zero => out.push(
+                *shape
+                    .get(d)
+                    .ok_or_else(|| Unsupported("reshape 0 past the rank".into()))?,
+            ),
+            t if t >= 0 => out.push(t as usize),
+            _ => return unsupported(format!("reshape to {target:?}")),
+        }
+    }
+    let known: usize = out.iter().product();
+    if let Some(d) = infer {
+        if known == 0 || !total.is_multiple_of(known) {
+            return unsupported(format!("reshape {shape:?} to {target:?}"));
+        }
+        out[d] = total / known;
+    }
+    if out.iter().product::<usize>() != total {
+        return unsupported(format!("reshape {shape:?} to {target:?}"));
+    }
+    Ok(out)
+}
+
+fn squeeze_shape(shape: &[usize], axes: &[i64], squeeze: bool) -> Lowered<Vec<usize>> {
+    if squeeze {
+        let rank = shape.len();
+        let axes = if axes.is_empty() {
+            (0..rank).filter(|&d| shape[d] == 1).collect::<Vec<_>>()
+        } else {
+            axes.iter()
+                .map(|&a| normalise_axis(a, rank))
+                .collect::<Lowered<_>>()?
+        };
+        if axes.iter().any(|&a| shape[a] != 1) {
+            return unsupported(format!("squeezing {axes:?} of {shape:?}"));
+        }
+        Ok((0..rank)
+            .filter(|d| !axes.contains(d))
+            .map(|d| shape[d])
+            .collect())
+    } else {
+        let rank = shape.len() + axes.len();
+        let axes = axes
+            .iter()
+            .map(|&a| normalise_axis(a, rank))
+            .collect::<Lowered<Vec<_>>>()?;
+        let mut rest = shape.iter();
+        (0..rank)
+            .map(|d| {
+                if axes.contains(&d) {
+                    Ok(1)
+                } else {
+                    rest.next()
+                        .copied()
+                        .ok_or_else(|| Unsupported("unsqueeze axes".into()))
+                }
+            })
+            .collect()
+    }
+}

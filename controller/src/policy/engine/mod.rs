@@ -1,0 +1,225 @@
+//! The compiled policy engine: the controller's own executor for the paper's networks, with
+//! nothing allocated after load and kernels compiled for the CPU it runs on.
+//!
+//! tract stays the loader and the oracle: it reads the ONNX file, checks it against the
+//! manifest and plans it, as before; the same file's graph is then lowered ([`lower`]) into
+//! a static plan ([`plan`]) whose every buffer is allocated here, with weights re-laid out
+//! for the kernels ([`kernels`]), compiled once per instruction set ([`isa`]). A graph with
+//! an operator or shape the engine does not lower runs under tract, and the reason is kept
+//! for the controller to log at load.
+//!
+//! Why our own instead of a library: tract plans and allocates on every run (84 allocations,
+//! 932 KB per CNN step) and its maintainers do not aim at real-time use; the other Rust
+//! runtimes wrap C++ (onnxruntime) or need a GPU. B-Human met the same wall on the Nao and
+//! wrote CompiledNN; this is the same idea, smaller, for the operators these networks use.
+
+pub mod isa;
+mod kernels;
+mod lower;
+mod plan;
+
+use std::path::{Path, PathBuf};
+
+use tract_onnx::pb;
+
+pub use isa::Isa;
+pub use lower::Unsupported;
+
+use plan::{BufferId, Step};
+
+/// A network lowered to a static plan for one instruction set.
+#[derive(Debug)]
+pub struct CompiledNetwork {
+    path: PathBuf,
+    isa: Isa,
+    steps: Vec<Step>,
+    buffers: Vec<Vec<f32>>,
+    inputs: Vec<(String, BufferId)>,
+    outputs: Vec<(String, BufferId, usize)>,
+}
+
+impl CompiledNetwork {
+    /// Lowers `graph` (of the file at `path`) for inputs of the given names and shapes, to
+    /// run with `isa`'s kernels. `isa` must be available on this CPU.
+    pub(crate) fn lower(
+        path: &Path,
+        graph: &pb::GraphProto,
+        inputs: &[(&str, &[usize])],
+        isa: Isa,
+    ) -> Result<Self, Unsupported> {
+        if !isa.is_available() {
+            return Err(Unsupported(format!("this CPU cannot run {isa} kernels")));
+        }
+        let lowering = lower::lower(graph, inputs)?;
+        let mut buffers = lowering.buffers;
+        // Constants folded into the steps (weights, biases) need no buffer of their own.
+        let mut used = vec![false; buffers.len()];
+        for step in &lowering.steps {
+            let (reads, writes) = step.buffers();
+            for id in reads.into_iter().chain(writes) {
+                used[id] = true;
+            }
+        }
+        for &(_, id) in &lowering.inputs {
+            used[id] = true;
+        }
+        for &(_, id, _) in &lowering.outputs {
+            used[id] = true;
+        }
+        for (buffer, used) in buffers.iter_mut().zip(used) {
+            if !used {
+                *buffer = Vec::new();
+            }
+        }
+        Ok(Self {
+            path: path.to_owned(),
+            isa,
+            steps: lowering.steps,
+            buffers,
+            inputs: lowering.inputs,
+            outputs: lowering.outputs,
+        })
+    }
+
+    pub fn isa(&self) -> Isa {
+        self.isa
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The input named `name`, to be written before [`Self::run`].
+    pub fn input_mut(&mut self, name: &str) -> Option<&mut [f32]> {
+        let id = self.inputs.iter().find(|(n, _)| n == name)?.1;
+        Some(&mut self.buffers[id])
+    }
+
+    /// The output named `name`, as the last [`Self::run`] left it.
+    pub fn output(&self, name: &str) -> Option<&[f32]> {
+        let &(_, id, len) = self.outputs.iter().find(|(n, _, _)| n == name)?;
+        Some(&self.buffers[id][..len])
+    }
+
+    /// Copies output `from` into input `to` (a recurrent state carried to the next step).
+    pub fn carry(&mut self, from: &str, to: &str) -> bool {
+        let (Some(&(_, source, len)), Some(&(_, target))) = (
+            self.outputs.iter().find(|(n, _, _)| n == from),
+            self.inputs.iter().find(|(n, _)| n == to),
+        ) else {
+            return false;
+        };
+        if source == target || self.buffers[target].len() != len {
+            return false;
+        }
+        let values = std::mem::take(&mut self.buffers[target]);
+        let mut values = values;
+        values.copy_from_slice(&self.buffers[source][..len]);
+        self.buffers[target] = values;
+        true
+    }
+
+    /// How many steps the plan has.
+    pub fn steps(&self) -> usize {
+        self.steps.len()
+    }
+
+    /// Wall time of each step over `repeats` runs, for profiling (allocates its report).
+    pub fn profile(&mut self, repeats: u32) -> Vec<(String, std::time::Duration)> {
+        let mut report = Vec::new();
+        for i in 0..self.steps.len() {
+            let started = std::time::Instant::now();
+            for _ in 0..repeats {
+                execute(self.isa, &self.steps[i..i + 1], &mut self.buffers);
+            }
+            let name = format!("{:?}", self.steps[i]).chars().take(60).collect();
+            report.push((name, started.elapsed() / repeats));
+        }
+        report
+    }
+
+    /// Runs the plan on the inputs as they are. Allocates nothing.
+    pub fn run(&mut self) {
+        execute(self.isa, &self.steps, &mut self.buffers);
+    }
+}
+
+// The one `unsafe` of the engine: calling the kernels compiled for an instruction set,
+// which is sound only on a CPU that has it.
+#[allow(unsafe_code)]
+fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>]) {
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    // SAFETY: `CompiledNetwork::lower` refuses an instruction set this CPU does not run, and
+    // `isa` cannot change afterwards.
+    unsafe {
+        match isa {
+            Isa::Avx2Fma => return x86::run_avx2_fma(steps, buffers),
+            Isa::Sse42 => return x86::run_sse42(steps, buffers),
+            Isa::Ssse3 => return x86::run_ssse3(steps, buffers),
+            Isa::Sse2 => return x86::run_sse2(steps, buffers),
+            Isa::Portable => {}
+        }
+    }
+    let _ = isa;
+    run_portable(steps, buffers);
+}
+
+/// The portable path: no target features, product and sum rounded separately.
+#[inline(never)]
+fn run_portable(steps: &[Step], buffers: &mut [Vec<f32>]) {
+    plan::run::<kernels::Separate>(steps, buffers);
+}
+
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+mod x86 {
+    use super::kernels::{Fused, Separate};
+    use super::plan::{Step, run};
+
+    #[target_feature(enable = "avx,avx2,fma")]
+    pub(super) fn run_avx2_fma(steps: &[Step], buffers: &mut [Vec<f32>]) {
+        run::<Fused>(steps, buffers);
+    }
+
+    #[target_feature(enable = "sse2,sse3,ssse3,sse4.1,sse4.2")]
+    pub(super) fn run_sse42(steps: &[Step], buffers: &mut [Vec<f32>]) {
+        run::<Separate>(steps, buffers);
+    }
+
+    #[target_feature(enable = "sse2,sse3,ssse3")]
+    pub(super) fn run_ssse3(steps: &[Step], buffers: &mut [Vec<f32>]) {
+        run::<Separate>(steps, buffers);
+    }
+
+    #[target_feature(enable = "sse2")]
+    pub(super) fn run_sse2(steps: &[Step], buffers: &mut [Vec<f32>]) {
+        run::<Separate>(steps, buffers);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tract_onnx::prelude::Framework;
+
+    #[test]
+    #[ignore = "profiling aid: cargo test --release -p dribble-controller profile -- --ignored --nocapture"]
+    fn profile_the_cnn_fixture() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");
+        let bytes = std::fs::read(&path).expect("fixture");
+        let proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut &bytes[..])
+            .expect("parses");
+        let graph = proto.graph.as_ref().expect("graph");
+        for isa in Isa::available() {
+            let inputs: [(&str, &[usize]); 2] =
+                [("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])];
+            let mut network = CompiledNetwork::lower(&path, graph, &inputs, isa).expect("lowers");
+            let report = network.profile(200);
+            let total: std::time::Duration = report.iter().map(|(_, t)| *t).sum();
+            println!("{isa}: {total:?}");
+            for (step, time) in report {
+                println!("  {time:>10?}  {step}");
+            }
+        }
+    }
+}

@@ -1,0 +1,404 @@
+//! The static execution plan: steps over buffers that were all allocated at load, and the
+//! loop that runs them. Running a plan allocates nothing: a step borrows its output buffer
+//! out of the list (`mem::take` leaves an empty `Vec`, which costs no allocation), computes
+//! from the others, and puts it back.
+
+use core::mem;
+
+use super::kernels::{self, ConvShape, MulAdd};
+
+pub(crate) type BufferId = usize;
+
+/// The highest rank the element-wise steps index.
+pub(crate) const MAX_RANK: usize = 6;
+
+/// Walks a tensor of `shape` in row-major order and gives, for each element, an offset
+/// under other `strides` (a broadcast operand, a transposed source, a reduction target).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Strided {
+    rank: usize,
+    shape: [usize; MAX_RANK],
+    strides: [usize; MAX_RANK],
+}
+
+impl Strided {
+    /// `shape` and `strides` of equal length, at most [`MAX_RANK`] (checked when lowering).
+    pub(crate) fn new(shape: &[usize], strides: &[usize]) -> Self {
+        let rank = shape.len().min(MAX_RANK);
+        let mut s = Self {
+            rank,
+            shape: [1; MAX_RANK],
+            strides: [0; MAX_RANK],
+        };
+        s.shape[..rank].copy_from_slice(&shape[..rank]);
+        s.strides[..rank].copy_from_slice(&strides[..rank]);
+        s
+    }
+
+    fn len(&self) -> usize {
+        self.shape[..self.rank].iter().product()
+    }
+
+    /// Calls `visit(element, offset)` for every element in row-major order.
+    #[inline(always)]
+    fn for_each(&self, mut visit: impl FnMut(usize, usize)) {
+        let mut index = [0usize; MAX_RANK];
+        let mut offset = 0;
+        for element in 0..self.len() {
+            visit(element, offset);
+            for d in (0..self.rank).rev() {
+                index[d] += 1;
+                offset += self.strides[d];
+                if index[d] < self.shape[d] {
+                    break;
+                }
+                offset -= self.strides[d] * self.shape[d];
+                index[d] = 0;
+            }
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum BinaryOp {
+    Add,
+    Sub,
+    Mul,
+    Div,
+    /// 1.0 where equal, else 0.0.
+    Equal,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ReduceOp {
+    Max,
+    Sum,
+}
+
+/// One step of a plan. Weights live in the step, laid out for its kernel.
+#[derive(Debug)]
+pub(crate) enum Step {
+    /// Copies a `[h][w][c]` map (or a `[c][h][w]` one, `from_nchw`) into the interior of a
+    /// zero-bordered NHWC buffer at `origin` (top and left padding); the border stays zero.
+    Pad {
+        from: BufferId,
+        to: BufferId,
+        size: [usize; 3],
+        origin: [usize; 2],
+        padded_width: usize,
+        from_nchw: bool,
+    },
+    Conv {
+        padded: BufferId,
+        weights: Vec<f32>,
+        bias: Vec<f32>,
+        shape: ConvShape,
+        relu: bool,
+        out: BufferId,
+    },
+    MaxPool {
+        from: BufferId,
+        to: BufferId,
+        size: [usize; 3],
+        kernel: [usize; 2],
+        stride: [usize; 2],
+        out: [usize; 2],
+    },
+    NhwcToNchw {
+        from: BufferId,
+        to: BufferId,
+        size: [usize; 3],
+    },
+    /// `rows` rows of `from` times `weights` (`[out][in]`) plus `bias`.
+    Dense {
+        from: BufferId,
+        weights: Vec<f32>,
+        bias: Vec<f32>,
+        rows: usize,
+        relu: bool,
+        to: BufferId,
+    },
+    /// One LSTM step: `[x, h_in]` into `joined`, one dense layer into `gates`, then the
+    /// cell update from `c_in` into `c_out` and `h_out`.
+    Lstm {
+        x: BufferId,
+        h_in: BufferId,
+        c_in: BufferId,
+        joined: BufferId,
+        weights: Vec<f32>,
+        bias: Vec<f32>,
+        gates: BufferId,
+        h_out: BufferId,
+        c_out: BufferId,
+    },
+    Copy {
+        from: BufferId,
+        from_offset: usize,
+        to: BufferId,
+        to_offset: usize,
+        len: usize,
+    },
+    /// `to[i] = from[source offset of i]`: a transpose.
+    Gather {
+        from: BufferId,
+        source: Strided,
+        to: BufferId,
+    },
+    Relu {
+        from: BufferId,
+        to: BufferId,
+        len: usize,
+    },
+    Binary {
+        op: BinaryOp,
+        a: BufferId,
+        a_index: Strided,
+        b: BufferId,
+        b_index: Strided,
+        to: BufferId,
+    },
+    /// Element `i` of `from` goes into `to[target offset of i]`.
+    Reduce {
+        op: ReduceOp,
+        from: BufferId,
+        target: Strided,
+        to: BufferId,
+    },
+}
+
+impl Step {
+    /// The buffers this step reads, and the ones it writes.
+    pub(crate) fn buffers(&self) -> (Vec<BufferId>, Vec<BufferId>) {
+        match self {
+            Self::Pad { from, to, .. }
+            | Self::MaxPool { from, to, .. }
+            | Self::NhwcToNchw { from, to, .. }
+            | Self::Dense { from, to, .. }
+            | Self::Copy { from, to, .. }
+            | Self::Gather { from, to, .. }
+            | Self::Relu { from, to, .. }
+            | Self::Reduce { from, to, .. } => (vec![*from], vec![*to]),
+            Self::Conv { padded, out, .. } => (vec![*padded], vec![*out]),
+            Self::Binary { a, b, to, .. } => (vec![*a, *b], vec![*to]),
+            Self::Lstm {
+                x,
+                h_in,
+                c_in,
+                joined,
+                gates,
+                h_out,
+                c_out,
+                ..
+            } => (
+                vec![*x, *h_in, *c_in],
+                vec![*joined, *gates, *h_out, *c_out],
+            ),
+        }
+    }
+}
+
+/// Runs `steps` over `buffers` with `M`'s multiply-add. Inlined into one function per
+/// instruction set, so that every kernel below is compiled for that set.
+#[inline(always)]
+pub(crate) fn run<M: MulAdd>(steps: &[Step], buffers: &mut [Vec<f32>]) {
+    for step in steps {
+        match step {
+            Step::Pad {
+                from,
+                to,
+                size: [h, w, c],
+                origin: [top, left],
+                padded_width,
+                from_nchw,
+            } => {
+                let mut out = mem::take(&mut buffers[*to]);
+                let input = &buffers[*from];
+                for y in 0..*h {
+                    let row = &mut out[((top + y) * padded_width + left) * c..][..w * c];
+                    if *from_nchw {
+                        for (x, pixel) in row.chunks_exact_mut(*c).enumerate() {
+                            for (channel, value) in pixel.iter_mut().enumerate() {
+                                *value = input[(channel * h + y) * w + x];
+                            }
+                        }
+                    } else {
+                        row.copy_from_slice(&input[y * w * c..(y + 1) * w * c]);
+                    }
+                }
+                buffers[*to] = out;
+            }
+            Step::Conv {
+                padded,
+                weights,
+                bias,
+                shape,
+                relu,
+                out,
+            } => {
+                let mut target = mem::take(&mut buffers[*out]);
+                let input = &buffers[*padded];
+                match shape.out_channels {
+                    8 => kernels::conv::<M, 8, 8>(shape, input, weights, bias, *relu, &mut target),
+                    16 => {
+                        kernels::conv::<M, 16, 4>(shape, input, weights, bias, *relu, &mut target)
+                    }
+                    32 => {
+                        kernels::conv::<M, 32, 2>(shape, input, weights, bias, *relu, &mut target)
+                    }
+                    _ => kernels::conv_any::<M>(shape, input, weights, bias, *relu, &mut target),
+                }
+                buffers[*out] = target;
+            }
+            Step::MaxPool {
+                from,
+                to,
+                size,
+                kernel,
+                stride,
+                out,
+            } => {
+                let mut target = mem::take(&mut buffers[*to]);
+                kernels::max_pool_nhwc(
+                    &buffers[*from],
+                    *size,
+                    *kernel,
+                    *stride,
+                    *out,
+                    false,
+                    &mut target,
+                );
+                buffers[*to] = target;
+            }
+            Step::NhwcToNchw {
+                from,
+                to,
+                size: [h, w, c],
+            } => {
+                let mut target = mem::take(&mut buffers[*to]);
+                let input = &buffers[*from];
+                for (pixel, values) in input.chunks_exact(*c).enumerate().take(h * w) {
+                    for (channel, &value) in values.iter().enumerate() {
+                        target[channel * h * w + pixel] = value;
+                    }
+                }
+                buffers[*to] = target;
+            }
+            Step::Dense {
+                from,
+                weights,
+                bias,
+                rows,
+                relu,
+                to,
+            } => {
+                let mut target = mem::take(&mut buffers[*to]);
+                let input = &buffers[*from];
+                let (k, n) = (input.len() / rows.max(&1), bias.len());
+                for r in 0..*rows {
+                    let y = &mut target[r * n..(r + 1) * n];
+                    kernels::dense::<M>(&input[r * k..(r + 1) * k], weights, bias, y);
+                    if *relu {
+                        for value in y.iter_mut() {
+                            *value = value.max(0.0);
+                        }
+                    }
+                }
+                buffers[*to] = target;
+            }
+            Step::Lstm {
+                x,
+                h_in,
+                c_in,
+                joined,
+                weights,
+                bias,
+                gates,
+                h_out,
+                c_out,
+            } => {
+                let mut xh = mem::take(&mut buffers[*joined]);
+                let features = buffers[*x].len();
+                xh[..features].copy_from_slice(&buffers[*x]);
+                xh[features..].copy_from_slice(&buffers[*h_in]);
+                let mut gate_values = mem::take(&mut buffers[*gates]);
+                kernels::dense::<M>(&xh, weights, bias, &mut gate_values);
+                let (mut h, mut c) = (
+                    mem::take(&mut buffers[*h_out]),
+                    mem::take(&mut buffers[*c_out]),
+                );
+                c.copy_from_slice(&buffers[*c_in]);
+                kernels::lstm_cell(&gate_values, &mut c, &mut h);
+                buffers[*joined] = xh;
+                buffers[*gates] = gate_values;
+                buffers[*h_out] = h;
+                buffers[*c_out] = c;
+            }
+            Step::Copy {
+                from,
+                from_offset,
+                to,
+                to_offset,
+                len,
+            } => {
+                let mut target = mem::take(&mut buffers[*to]);
+                target[*to_offset..to_offset + len]
+                    .copy_from_slice(&buffers[*from][*from_offset..from_offset + len]);
+                buffers[*to] = target;
+            }
+            Step::Gather { from, source, to } => {
+                let mut target = mem::take(&mut buffers[*to]);
+                let input = &buffers[*from];
+                source.for_each(|i, offset| target[i] = input[offset]);
+                buffers[*to] = target;
+            }
+            Step::Relu { from, to, len } => {
+                let mut target = mem::take(&mut buffers[*to]);
+                for (t, &v) in target[..*len].iter_mut().zip(&buffers[*from]) {
+                    *t = v.max(0.0);
+                }
+                buffers[*to] = target;
+            }
+            Step::Binary {
+                op,
+                a,
+                a_index,
+                b,
+                b_index,
+                to,
+            } => {
+                let mut target = mem::take(&mut buffers[*to]);
+                let (left, right) = (&buffers[*a], &buffers[*b]);
+                a_index.for_each(|i, offset| target[i] = left[offset]);
+                let apply = |x: f32, y: f32| match op {
+                    BinaryOp::Add => x + y,
+                    BinaryOp::Sub => x - y,
+                    BinaryOp::Mul => x * y,
+                    BinaryOp::Div => x / y,
+                    BinaryOp::Equal => f32::from(u8::from(x == y)),
+                };
+                b_index.for_each(|i, offset| target[i] = apply(target[i], right[offset]));
+                buffers[*to] = target;
+            }
+            Step::Reduce {
+                op,
+                from,
+                target,
+                to,
+            } => {
+                let mut out = mem::take(&mut buffers[*to]);
+                out.fill(match op {
+                    ReduceOp::Max => f32::NEG_INFINITY,
+                    ReduceOp::Sum => 0.0,
+                });
+                let input = &buffers[*from];
+                target.for_each(|i, offset| {
+                    out[offset] = match op {
+                        ReduceOp::Max => out[offset].max(input[i]),
+                        ReduceOp::Sum => out[offset] + input[i],
+                    }
+                });
+                buffers[*to] = out;
+            }
+        }
+    }
+}
