@@ -28,7 +28,7 @@ struct Cli {
     /// Which engine runs a learned policy: `tract`, or `compiled` (the controller's own
     /// allocation-free engine; a network it cannot lower runs under tract, and the log
     /// says why).
-    #[arg(long, default_value = "tract", global = true)]
+    #[arg(long, default_value = "compiled", global = true)]
     engine: Engine,
     /// The compiled engine's instruction set (portable, sse2, ssse3, sse4.2, avx2+fma).
     /// Default: the widest this CPU runs.

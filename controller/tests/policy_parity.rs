@@ -1,4 +1,4 @@
-//! The controller reproduces PyTorch (tract; the compiled engine is held to tract in engine_parity.rs) on the committed fixtures.
+//! The controller (its compiled engine, by default) reproduces PyTorch on the committed fixtures.
 
 mod support;
 

@@ -1,9 +1,9 @@
 //! The learned policies of the paper: CNN, H-CNN and R-CNN.
 //!
-//! tract reads, checks and plans every network at load. With `Engine::Compiled` the
-//! compiled engine ([`super::engine`]) then runs it: a static plan with every buffer
-//! allocated at load, so a step allocates nothing. A network the engine cannot lower, or
-//! `Engine::Tract` (the default for now, see [`Engine`]), runs under tract: its input tensors are allocated once and shared with tract by reference
+//! tract reads, checks and plans every network at load. By default the compiled engine
+//! ([`super::engine`]) then runs it: a static plan with every buffer allocated at load, so
+//! a step allocates nothing. A network the engine cannot lower, or `Engine::Tract`, runs
+//! under tract: its input tensors are allocated once and shared with tract by reference
 //! count (a step writes the scaled thumbnails in place), but tract allocates its
 //! intermediate tensors on every run. [`OnnxPolicy::engine`] says which ran and why.
 
@@ -19,16 +19,12 @@ use super::{Policy, PolicyError, PolicyInput, PolicyLoadError, PolicyOutput};
 use crate::histogram::gating_feature;
 
 /// Which engine runs a policy's networks.
-///
-/// tract is the default for now: the compiled engine allocates nothing and matches tract to
-/// 1e-6, but its kernels are not yet faster than tract's (the compiler keeps too little of
-/// their accumulators in vector registers); it becomes the default when they are.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Engine {
     /// The compiled engine (allocation-free steps), tract where it cannot lower a network.
+    #[default]
     Compiled,
     /// tract for every network (the reference the engine is checked against).
-    #[default]
     Tract,
 }
 

@@ -17,6 +17,8 @@ pub mod isa;
 mod kernels;
 mod lower;
 mod plan;
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+mod simd;
 
 use std::path::{Path, PathBuf};
 
@@ -167,32 +169,31 @@ fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>]) {
 /// The portable path: no target features, product and sum rounded separately.
 #[inline(never)]
 fn run_portable(steps: &[Step], buffers: &mut [Vec<f32>]) {
-    plan::run::<kernels::Separate>(steps, buffers);
+    plan::run::<plan::Generic<kernels::Separate>>(steps, buffers);
 }
 
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod x86 {
-    use super::kernels::{Fused, Separate};
-    use super::plan::{Step, run};
+    use super::plan::{AvxKernels, SseKernels, Step, run};
 
     #[target_feature(enable = "avx,avx2,fma")]
     pub(super) fn run_avx2_fma(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<Fused>(steps, buffers);
+        run::<AvxKernels>(steps, buffers);
     }
 
     #[target_feature(enable = "sse2,sse3,ssse3,sse4.1,sse4.2")]
     pub(super) fn run_sse42(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<Separate>(steps, buffers);
+        run::<SseKernels>(steps, buffers);
     }
 
     #[target_feature(enable = "sse2,sse3,ssse3")]
     pub(super) fn run_ssse3(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<Separate>(steps, buffers);
+        run::<SseKernels>(steps, buffers);
     }
 
     #[target_feature(enable = "sse2")]
     pub(super) fn run_sse2(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<Separate>(steps, buffers);
+        run::<SseKernels>(steps, buffers);
     }
 }
 

@@ -7,6 +7,124 @@ use core::mem;
 
 use super::kernels::{self, ConvShape, MulAdd};
 
+/// The two hot kernels, as an instruction set provides them.
+pub(crate) trait Kernels {
+    fn conv(
+        shape: &ConvShape,
+        padded: &[f32],
+        weights: &[f32],
+        bias: &[f32],
+        relu: bool,
+        out: &mut [f32],
+    );
+    fn dense(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]);
+}
+
+/// The generic kernels, left to the compiler to vectorise (the portable path).
+#[derive(Debug)]
+pub(crate) struct Generic<M>(core::marker::PhantomData<M>);
+
+impl<M: MulAdd> Kernels for Generic<M> {
+    #[inline(always)]
+    fn conv(
+        shape: &ConvShape,
+        padded: &[f32],
+        weights: &[f32],
+        bias: &[f32],
+        relu: bool,
+        out: &mut [f32],
+    ) {
+        match shape.out_channels {
+            8 => kernels::conv::<M, 8, 8>(shape, padded, weights, bias, relu, out),
+            16 => kernels::conv::<M, 16, 4>(shape, padded, weights, bias, relu, out),
+            32 => kernels::conv::<M, 32, 2>(shape, padded, weights, bias, relu, out),
+            _ => kernels::conv_any::<M>(shape, padded, weights, bias, relu, out),
+        }
+    }
+
+    #[inline(always)]
+    fn dense(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
+        kernels::dense::<M>(x, weights, bias, y);
+    }
+}
+
+/// SSE vectors (the Nao V5's and V6's sets): four channels per register.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[derive(Debug)]
+pub(crate) struct SseKernels;
+
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+impl Kernels for SseKernels {
+    #[inline(always)]
+    fn conv(
+        shape: &ConvShape,
+        padded: &[f32],
+        weights: &[f32],
+        bias: &[f32],
+        relu: bool,
+        out: &mut [f32],
+    ) {
+        use super::simd::{Sse, conv};
+        // x86-64 has sixteen vector registers, the 32-bit build eight.
+        #[cfg(target_arch = "x86_64")]
+        let done = match shape.out_channels {
+            8 => conv::<Sse, 2, 4>(shape, padded, weights, bias, relu, out),
+            16 => conv::<Sse, 4, 2>(shape, padded, weights, bias, relu, out),
+            32 => conv::<Sse, 8, 1>(shape, padded, weights, bias, relu, out),
+            _ => false,
+        };
+        #[cfg(target_arch = "x86")]
+        let done = match shape.out_channels {
+            8 => conv::<Sse, 2, 2>(shape, padded, weights, bias, relu, out),
+            16 => conv::<Sse, 4, 1>(shape, padded, weights, bias, relu, out),
+            32 => conv::<Sse, 8, 1>(shape, padded, weights, bias, relu, out),
+            _ => false,
+        };
+        if !done {
+            Generic::<kernels::Separate>::conv(shape, padded, weights, bias, relu, out);
+        }
+    }
+
+    #[inline(always)]
+    fn dense(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
+        super::simd::dense::<super::simd::Sse>(x, weights, bias, y);
+    }
+}
+
+/// AVX2 vectors with FMA: eight channels per register.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[derive(Debug)]
+pub(crate) struct AvxKernels;
+
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+impl Kernels for AvxKernels {
+    #[inline(always)]
+    fn conv(
+        shape: &ConvShape,
+        padded: &[f32],
+        weights: &[f32],
+        bias: &[f32],
+        relu: bool,
+        out: &mut [f32],
+    ) {
+        use super::simd::{Avx, conv};
+        let done = match shape.out_channels {
+            8 => conv::<Avx, 1, 8>(shape, padded, weights, bias, relu, out),
+            16 => conv::<Avx, 2, 6>(shape, padded, weights, bias, relu, out),
+            32 => conv::<Avx, 4, 2>(shape, padded, weights, bias, relu, out),
+            _ => false,
+        };
+        if !done {
+            Generic::<kernels::Fused>::conv(shape, padded, weights, bias, relu, out);
+        }
+    }
+
+    #[inline(always)]
+    fn dense(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
+        super::simd::dense::<super::simd::Avx>(x, weights, bias, y);
+    }
+}
+
 pub(crate) type BufferId = usize;
 
 /// The highest rank the element-wise steps index.
@@ -197,10 +315,10 @@ impl Step {
     }
 }
 
-/// Runs `steps` over `buffers` with `M`'s multiply-add. Inlined into one function per
+/// Runs `steps` over `buffers` with `K`'s kernels. Inlined into one function per
 /// instruction set, so that every kernel below is compiled for that set.
 #[inline(always)]
-pub(crate) fn run<M: MulAdd>(steps: &[Step], buffers: &mut [Vec<f32>]) {
+pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>]) {
     for step in steps {
         match step {
             Step::Pad {
@@ -237,16 +355,7 @@ pub(crate) fn run<M: MulAdd>(steps: &[Step], buffers: &mut [Vec<f32>]) {
             } => {
                 let mut target = mem::take(&mut buffers[*out]);
                 let input = &buffers[*padded];
-                match shape.out_channels {
-                    8 => kernels::conv::<M, 8, 8>(shape, input, weights, bias, *relu, &mut target),
-                    16 => {
-                        kernels::conv::<M, 16, 4>(shape, input, weights, bias, *relu, &mut target)
-                    }
-                    32 => {
-                        kernels::conv::<M, 32, 2>(shape, input, weights, bias, *relu, &mut target)
-                    }
-                    _ => kernels::conv_any::<M>(shape, input, weights, bias, *relu, &mut target),
-                }
+                K::conv(shape, input, weights, bias, *relu, &mut target);
                 buffers[*out] = target;
             }
             Step::MaxPool {
@@ -296,7 +405,7 @@ pub(crate) fn run<M: MulAdd>(steps: &[Step], buffers: &mut [Vec<f32>]) {
                 let (k, n) = (input.len() / rows.max(&1), bias.len());
                 for r in 0..*rows {
                     let y = &mut target[r * n..(r + 1) * n];
-                    kernels::dense::<M>(&input[r * k..(r + 1) * k], weights, bias, y);
+                    K::dense(&input[r * k..(r + 1) * k], weights, bias, y);
                     if *relu {
                         for value in y.iter_mut() {
                             *value = value.max(0.0);
@@ -321,7 +430,7 @@ pub(crate) fn run<M: MulAdd>(steps: &[Step], buffers: &mut [Vec<f32>]) {
                 xh[..features].copy_from_slice(&buffers[*x]);
                 xh[features..].copy_from_slice(&buffers[*h_in]);
                 let mut gate_values = mem::take(&mut buffers[*gates]);
-                kernels::dense::<M>(&xh, weights, bias, &mut gate_values);
+                K::dense(&xh, weights, bias, &mut gate_values);
                 let (mut h, mut c) = (
                     mem::take(&mut buffers[*h_out]),
                     mem::take(&mut buffers[*c_out]),

@@ -1,0 +1,258 @@
+//! Vector kernels for x86: the convolution and the dense layer written over explicit vector
+//! registers (`__m128` for the SSE sets, `__m256` with FMA for AVX2), so that the
+//! accumulators of a block of output pixels stay in registers. Left to itself the compiler
+//! splits fixed-size float arrays into scalars and vectorises only part of them back (the
+//! generic kernels in [`super::kernels`] ran at about a third of tract's speed for that
+//! reason); these are the engine's hot loops and are worth the `std::arch`.
+//!
+//! Every function here is `#[inline(always)]` and only ever inlined into the functions of
+//! `super::x86` compiled with the matching `#[target_feature]`; that is what makes the
+//! intrinsics sound to call.
+#![allow(unsafe_code)]
+
+#[cfg(target_arch = "x86")]
+use std::arch::x86::*;
+#[cfg(target_arch = "x86_64")]
+use std::arch::x86_64::*;
+
+use super::kernels::ConvShape;
+
+/// A vector of `LANES` floats and the operations the kernels need.
+pub(crate) trait Vector: Copy {
+    const LANES: usize;
+    fn zero() -> Self;
+    fn splat(x: f32) -> Self;
+    /// The first `LANES` values of `values` (which must hold that many).
+    fn load(values: &[f32]) -> Self;
+    fn store(self, values: &mut [f32]);
+    /// `a * b + c`: fused where the set has FMA.
+    fn mul_add(a: Self, b: Self, c: Self) -> Self;
+    fn max(a: Self, b: Self) -> Self;
+    fn sum(self) -> f32;
+}
+
+/// Four floats in an SSE register; product and sum rounded separately.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sse(__m128);
+
+// SAFETY (all `unsafe` blocks of this impl): SSE and SSE2 are the baseline of both x86
+// targets this crate builds for (x86-64, and i686 whose Rust target enables SSE2), and these
+// functions run inside `super::x86`'s functions compiled with at least SSE2; every load and
+// store is checked to stay inside its slice first.
+impl Vector for Sse {
+    const LANES: usize = 4;
+
+    #[inline(always)]
+    fn zero() -> Self {
+        Self(unsafe { _mm_setzero_ps() })
+    }
+
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        Self(unsafe { _mm_set1_ps(x) })
+    }
+
+    #[inline(always)]
+    fn load(values: &[f32]) -> Self {
+        let values = &values[..4];
+        Self(unsafe { _mm_loadu_ps(values.as_ptr()) })
+    }
+
+    #[inline(always)]
+    fn store(self, values: &mut [f32]) {
+        let values = &mut values[..4];
+        unsafe { _mm_storeu_ps(values.as_mut_ptr(), self.0) }
+    }
+
+    #[inline(always)]
+    fn mul_add(a: Self, b: Self, c: Self) -> Self {
+        Self(unsafe { _mm_add_ps(_mm_mul_ps(a.0, b.0), c.0) })
+    }
+
+    #[inline(always)]
+    fn max(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm_max_ps(a.0, b.0) })
+    }
+
+    #[inline(always)]
+    fn sum(self) -> f32 {
+        let mut lanes = [0.0f32; 4];
+        self.store(&mut lanes);
+        (lanes[0] + lanes[2]) + (lanes[1] + lanes[3])
+    }
+}
+
+/// Eight floats in an AVX register; multiply-add fused.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Avx(__m256);
+
+// SAFETY (all `unsafe` blocks of this impl): only inlined into `super::x86::run_avx2_fma`,
+// compiled with AVX, AVX2 and FMA, which `CompiledNetwork::lower` selects only on a CPU that
+// has them; every load and store is checked to stay inside its slice first.
+impl Vector for Avx {
+    const LANES: usize = 8;
+
+    #[inline(always)]
+    fn zero() -> Self {
+        Self(unsafe { _mm256_setzero_ps() })
+    }
+
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        Self(unsafe { _mm256_set1_ps(x) })
+    }
+
+    #[inline(always)]
+    fn load(values: &[f32]) -> Self {
+        let values = &values[..8];
+        Self(unsafe { _mm256_loadu_ps(values.as_ptr()) })
+    }
+
+    #[inline(always)]
+    fn store(self, values: &mut [f32]) {
+        let values = &mut values[..8];
+        unsafe { _mm256_storeu_ps(values.as_mut_ptr(), self.0) }
+    }
+
+    #[inline(always)]
+    fn mul_add(a: Self, b: Self, c: Self) -> Self {
+        Self(unsafe { _mm256_fmadd_ps(a.0, b.0, c.0) })
+    }
+
+    #[inline(always)]
+    fn max(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm256_max_ps(a.0, b.0) })
+    }
+
+    #[inline(always)]
+    fn sum(self) -> f32 {
+        let mut lanes = [0.0f32; 8];
+        self.store(&mut lanes);
+        ((lanes[0] + lanes[4]) + (lanes[1] + lanes[5]))
+            + ((lanes[2] + lanes[6]) + (lanes[3] + lanes[7]))
+    }
+}
+
+/// [`super::kernels::conv`] over vectors: `VECS` vectors of `V` per output pixel (the output
+/// channels), `P` pixels per block. Returns false (nothing written) when the output channels
+/// are not `VECS` vectors.
+#[inline(always)]
+pub(crate) fn conv<V: Vector, const VECS: usize, const P: usize>(
+    shape: &ConvShape,
+    padded: &[f32],
+    weights: &[f32],
+    bias: &[f32],
+    relu: bool,
+    out: &mut [f32],
+) -> bool {
+    let oc = shape.out_channels;
+    if oc != VECS * V::LANES {
+        return false;
+    }
+    let [oh, ow] = shape.out;
+    let bias: [V; VECS] = core::array::from_fn(|v| V::load(&bias[v * V::LANES..]));
+    for oy in 0..oh {
+        let out_row = &mut out[oy * ow * oc..(oy + 1) * ow * oc];
+        let blocks = ow / P;
+        for block in 0..blocks {
+            let target = &mut out_row[block * P * oc..(block + 1) * P * oc];
+            conv_block::<V, VECS, P>(shape, padded, weights, &bias, relu, oy, block * P, target);
+        }
+        for ox in blocks * P..ow {
+            let target = &mut out_row[ox * oc..(ox + 1) * oc];
+            conv_block::<V, VECS, 1>(shape, padded, weights, &bias, relu, oy, ox, target);
+        }
+    }
+    true
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // one block of one convolution
+fn conv_block<V: Vector, const VECS: usize, const P: usize>(
+    shape: &ConvShape,
+    padded: &[f32],
+    weights: &[f32],
+    bias: &[V; VECS],
+    relu: bool,
+    oy: usize,
+    ox: usize,
+    target: &mut [f32],
+) {
+    let ic = shape.in_channels;
+    let oc = VECS * V::LANES;
+    let [kh, kw] = shape.kernel;
+    let [sy, sx] = shape.stride;
+    let row = shape.padded_width * ic;
+    let step = sx * ic;
+    let mut acc = [*bias; P];
+    for ky in 0..kh {
+        let input_row = &padded[(oy * sy + ky) * row..(oy * sy + ky + 1) * row];
+        for kx in 0..kw {
+            let taps = &weights[(ky * kw + kx) * ic * oc..(ky * kw + kx + 1) * ic * oc];
+            let first = (ox * sx + kx) * ic;
+            let span = &input_row[first..first + (P - 1) * step + ic];
+            for c in 0..ic {
+                let w: [V; VECS] =
+                    core::array::from_fn(|v| V::load(&taps[c * oc + v * V::LANES..]));
+                let xs: [V; P] = core::array::from_fn(|p| V::splat(span[p * step + c]));
+                for p in 0..P {
+                    for v in 0..VECS {
+                        acc[p][v] = V::mul_add(xs[p], w[v], acc[p][v]);
+                    }
+                }
+            }
+        }
+    }
+    let zero = V::zero();
+    for (p, acc) in acc.iter().enumerate() {
+        for (v, &a) in acc.iter().enumerate() {
+            let value = if relu { V::max(a, zero) } else { a };
+            value.store(&mut target[p * oc + v * V::LANES..]);
+        }
+    }
+}
+
+/// [`super::kernels::dense`] over vectors: four rows at a time.
+#[inline(always)]
+pub(crate) fn dense<V: Vector>(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
+    let k = x.len();
+    let whole = k - k % V::LANES;
+    let n = y.len();
+    let mut start = 0;
+    while start + 4 <= n {
+        let rows: [&[f32]; 4] =
+            core::array::from_fn(|r| &weights[(start + r) * k..(start + r + 1) * k]);
+        let mut acc = [V::zero(); 4];
+        let mut i = 0;
+        while i < whole {
+            let xv = V::load(&x[i..]);
+            let w: [V; 4] = core::array::from_fn(|r| V::load(&rows[r][i..]));
+            for r in 0..4 {
+                acc[r] = V::mul_add(xv, w[r], acc[r]);
+            }
+            i += V::LANES;
+        }
+        for r in 0..4 {
+            let mut sum = acc[r].sum();
+            for j in whole..k {
+                sum += x[j] * rows[r][j];
+            }
+            y[start + r] = sum + bias[start + r];
+        }
+        start += 4;
+    }
+    for row in start..n {
+        let w = &weights[row * k..(row + 1) * k];
+        let mut acc = V::zero();
+        let mut i = 0;
+        while i < whole {
+            acc = V::mul_add(V::load(&x[i..]), V::load(&w[i..]), acc);
+            i += V::LANES;
+        }
+        let mut sum = acc.sum();
+        for j in whole..k {
+            sum += x[j] * w[j];
+        }
+        y[row] = sum + bias[row];
+    }
+}
