@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail, ensure};
 use clap::{Args, ValueEnum};
-use dribble_controller::policy::{OnnxPolicy, PolicyManifest};
+use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy, PolicyManifest};
 use dribble_controller::{BottomThumbnail, Policy, PolicyInput, SpeedCommand, TopThumbnail};
 use dribble_sim::dataset::{DatasetIndex, read_npz};
 use dribble_sim::expert::Phase;
@@ -32,6 +32,9 @@ pub struct ScoreArgs {
     /// Also write the errors (overall, per phase, per episode) as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// The engine that runs the policy: `compiled` (the controller's default) or `tract`.
+    #[arg(long, default_value = "compiled")]
+    engine: Engine,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -70,13 +73,18 @@ pub fn run(args: &ScoreArgs) -> anyhow::Result<()> {
     let hash = index
         .compute_content_hash()
         .context("the dataset has episodes without a hash")?;
-    let (mut policy, manifest) = OnnxPolicy::load(&args.policy)
+    let options = EngineOptions {
+        engine: args.engine,
+        isa: None,
+    };
+    let (mut policy, manifest) = OnnxPolicy::load_with(&args.policy, options)
         .with_context(|| format!("loading the policy {}", args.policy.display()))?;
     let role = role_of(&manifest, &hash);
     println!(
-        "policy {} ({:?}), dataset {} ({} episodes, content hash {}): {}",
+        "policy {} ({:?}, engine {}), dataset {} ({} episodes, content hash {}): {}",
         args.policy.display(),
         manifest.kind,
+        policy.engine(),
         args.dataset.display(),
         index.episodes.len(),
         short(&hash),

@@ -10,11 +10,12 @@ use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
 use dribble_controller::policy::{Engine, EngineOptions};
 use dribble_controller::test_pattern::TestPattern;
+use dribble_controller::thumbnail::downscale;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts};
 use dribble_controller::transport::{ControllerNode, NodeCounters, NodeEvent};
 use dribble_controller::{
-    BottomFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, MonotonicClock, Policy,
-    SyncConfig, TopFrame, shutdown,
+    BottomFrame, BottomThumbnail, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock,
+    MonotonicClock, Policy, PolicyInput, SyncConfig, Timestamp, TopFrame, TopThumbnail, shutdown,
 };
 
 /// The dribble controller: turns the Nao's two camera images into walk speed commands with a
@@ -82,6 +83,16 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         drop_bottom_every: u64,
     },
+    /// Runs a policy's forward pass `--steps` times on the test pattern's thumbnails and
+    /// exits: the workload for instruction counts (`cross/count` runs it under callgrind
+    /// with 1 and with 11 steps; the difference is ten forward passes).
+    Forward {
+        /// A learned policy's manifest (`policy.toml`).
+        #[arg(long)]
+        policy: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        steps: u32,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -118,6 +129,7 @@ fn main() -> anyhow::Result<()> {
             }
             result
         }
+        Command::Forward { policy, steps } => forward(&policy, steps, options),
         Command::DryRun {
             policy,
             seconds,
@@ -216,6 +228,29 @@ fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(
     );
     print_statistics(control);
     result.context("the transport failed")
+}
+
+fn forward(manifest: &Path, steps: u32, options: EngineOptions) -> anyhow::Result<()> {
+    let mut policy = load_policy(Some(manifest), options)?;
+    let pattern = TestPattern::default();
+    let (mut top_frame, mut bottom_frame) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    let (mut top, mut bottom) = (
+        Box::new(TopThumbnail::black()),
+        Box::new(BottomThumbnail::black()),
+    );
+    pattern.paint(&mut top_frame, 0, Timestamp::ZERO);
+    pattern.paint(&mut bottom_frame, 0, Timestamp::ZERO);
+    downscale(&top_frame, &mut top);
+    downscale(&bottom_frame, &mut bottom);
+    let mut last = None;
+    for _ in 0..steps {
+        last = Some(policy.step(PolicyInput {
+            top: &top,
+            bottom: &bottom,
+        })?);
+    }
+    println!("{steps} forward pass(es); last command {last:?}");
+    Ok(())
 }
 
 fn dry_run(
