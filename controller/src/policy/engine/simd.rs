@@ -24,6 +24,11 @@ pub(crate) trait Vector: Copy {
     fn splat(x: f32) -> Self;
     /// The first `LANES` values of `values` (which must hold that many).
     fn load(values: &[f32]) -> Self;
+    /// The `LANES` values from `values`.
+    ///
+    /// # Safety
+    /// `values` must point at `LANES` readable floats.
+    unsafe fn load_unchecked(values: *const f32) -> Self;
     fn store(self, values: &mut [f32]);
     /// `a * b + c`: fused where the set has FMA.
     fn mul_add(a: Self, b: Self, c: Self) -> Self;
@@ -56,6 +61,12 @@ impl Vector for Sse {
     fn load(values: &[f32]) -> Self {
         let values = &values[..4];
         Self(unsafe { _mm_loadu_ps(values.as_ptr()) })
+    }
+
+    #[inline(always)]
+    unsafe fn load_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise, and the baseline SSE (above).
+        Self(unsafe { _mm_loadu_ps(values) })
     }
 
     #[inline(always)]
@@ -106,6 +117,12 @@ impl Vector for Avx {
     fn load(values: &[f32]) -> Self {
         let values = &values[..8];
         Self(unsafe { _mm256_loadu_ps(values.as_ptr()) })
+    }
+
+    #[inline(always)]
+    unsafe fn load_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise, and the AVX this is compiled with (above).
+        Self(unsafe { _mm256_loadu_ps(values) })
     }
 
     #[inline(always)]
@@ -191,10 +208,18 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize>(
             let taps = &weights[(ky * kw + kx) * ic * oc..(ky * kw + kx + 1) * ic * oc];
             let first = (ox * sx + kx) * ic;
             let span = &input_row[first..first + (P - 1) * step + ic];
+            // The slices are checked once here; the loop below reads inside them without a
+            // check per value, which on the V5 would cost more than the arithmetic.
+            let (taps, span) = (taps.as_ptr(), span.as_ptr());
             for c in 0..ic {
-                let w: [V; VECS] =
-                    core::array::from_fn(|v| V::load(&taps[c * oc + v * V::LANES..]));
-                let xs: [V; P] = core::array::from_fn(|p| V::splat(span[p * step + c]));
+                // SAFETY: c < ic, v < VECS and p < P, so c * oc + v * LANES + LANES <= ic * oc
+                // (the length of `taps`) and p * step + c < (P - 1) * step + ic (the length
+                // of `span`).
+                let w: [V; VECS] = core::array::from_fn(|v| unsafe {
+                    V::load_unchecked(taps.add(c * oc + v * V::LANES))
+                });
+                let xs: [V; P] =
+                    core::array::from_fn(|p| V::splat(unsafe { *span.add(p * step + c) }));
                 for p in 0..P {
                     for v in 0..VECS {
                         acc[p][v] = V::mul_add(xs[p], w[v], acc[p][v]);
@@ -224,9 +249,12 @@ pub(crate) fn dense<V: Vector>(x: &[f32], weights: &[f32], bias: &[f32], y: &mut
             core::array::from_fn(|r| &weights[(start + r) * k..(start + r + 1) * k]);
         let mut acc = [V::zero(); 4];
         let mut i = 0;
+        let pointers: [*const f32; 4] = core::array::from_fn(|r| rows[r].as_ptr());
         while i < whole {
-            let xv = V::load(&x[i..]);
-            let w: [V; 4] = core::array::from_fn(|r| V::load(&rows[r][i..]));
+            // SAFETY: i + LANES <= whole <= k, the length of `x` and of every row.
+            let xv = unsafe { V::load_unchecked(x.as_ptr().add(i)) };
+            let w: [V; 4] =
+                core::array::from_fn(|r| unsafe { V::load_unchecked(pointers[r].add(i)) });
             for r in 0..4 {
                 acc[r] = V::mul_add(xv, w[r], acc[r]);
             }
