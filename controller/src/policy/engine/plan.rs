@@ -65,20 +65,17 @@ impl Kernels for SseKernels {
         out: &mut [f32],
     ) {
         use super::simd::{Sse, conv};
-        // x86-64 has sixteen vector registers, the 32-bit build eight.
+        // Accumulators, weight vectors and broadcast inputs in registers: sixteen on x86-64,
+        // eight on the 32-bit build.
         #[cfg(target_arch = "x86_64")]
         let done = match shape.out_channels {
             8 => conv::<Sse, 2, 4>(shape, padded, weights, bias, relu, out),
-            16 => conv::<Sse, 4, 2>(shape, padded, weights, bias, relu, out),
-            32 => conv::<Sse, 8, 1>(shape, padded, weights, bias, relu, out),
-            _ => false,
+            _ => conv::<Sse, 4, 2>(shape, padded, weights, bias, relu, out),
         };
         #[cfg(target_arch = "x86")]
         let done = match shape.out_channels {
-            8 => conv::<Sse, 2, 2>(shape, padded, weights, bias, relu, out),
-            16 => conv::<Sse, 4, 1>(shape, padded, weights, bias, relu, out),
-            32 => conv::<Sse, 8, 1>(shape, padded, weights, bias, relu, out),
-            _ => false,
+            8 => conv::<Sse, 2, 1>(shape, padded, weights, bias, relu, out),
+            _ => conv::<Sse, 4, 1>(shape, padded, weights, bias, relu, out),
         };
         if !done {
             Generic::<kernels::Separate>::conv(shape, padded, weights, bias, relu, out);
@@ -111,8 +108,7 @@ impl Kernels for AvxKernels {
         let done = match shape.out_channels {
             8 => conv::<Avx, 1, 8>(shape, padded, weights, bias, relu, out),
             16 => conv::<Avx, 2, 6>(shape, padded, weights, bias, relu, out),
-            32 => conv::<Avx, 4, 2>(shape, padded, weights, bias, relu, out),
-            _ => false,
+            _ => conv::<Avx, 4, 2>(shape, padded, weights, bias, relu, out),
         };
         if !done {
             Generic::<kernels::Fused>::conv(shape, padded, weights, bias, relu, out);

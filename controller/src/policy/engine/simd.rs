@@ -150,9 +150,10 @@ impl Vector for Avx {
     }
 }
 
-/// [`super::kernels::conv`] over vectors: `VECS` vectors of `V` per output pixel (the output
-/// channels), `P` pixels per block. Returns false (nothing written) when the output channels
-/// are not `VECS` vectors.
+/// [`super::kernels::conv`] over vectors: the output channels in groups of `VECS` vectors of
+/// `V`, `P` pixels per block, so that `P x VECS` accumulators, `VECS` weight vectors and `P`
+/// broadcast inputs fit the register file. Returns false (nothing written) when the output
+/// channels are not a whole number of groups.
 #[inline(always)]
 pub(crate) fn conv<V: Vector, const VECS: usize, const P: usize>(
     shape: &ConvShape,
@@ -163,26 +164,52 @@ pub(crate) fn conv<V: Vector, const VECS: usize, const P: usize>(
     out: &mut [f32],
 ) -> bool {
     let oc = shape.out_channels;
-    if oc != VECS * V::LANES {
+    let group = VECS * V::LANES;
+    if oc == 0
+        || !oc.is_multiple_of(group)
+        || weights.len() < shape.kernel[0] * shape.kernel[1] * shape.in_channels * oc
+    {
         return false;
     }
     let [oh, ow] = shape.out;
-    let bias: [V; VECS] = core::array::from_fn(|v| V::load(&bias[v * V::LANES..]));
-    for oy in 0..oh {
-        let out_row = &mut out[oy * ow * oc..(oy + 1) * ow * oc];
-        let blocks = ow / P;
-        for block in 0..blocks {
-            let target = &mut out_row[block * P * oc..(block + 1) * P * oc];
-            conv_block::<V, VECS, P>(shape, padded, weights, &bias, relu, oy, block * P, target);
-        }
-        for ox in blocks * P..ow {
-            let target = &mut out_row[ox * oc..(ox + 1) * oc];
-            conv_block::<V, VECS, 1>(shape, padded, weights, &bias, relu, oy, ox, target);
+    for g in 0..oc / group {
+        let channels = g * group;
+        let bias: [V; VECS] = core::array::from_fn(|v| V::load(&bias[channels + v * V::LANES..]));
+        for oy in 0..oh {
+            let out_row = &mut out[oy * ow * oc..(oy + 1) * ow * oc];
+            let blocks = ow / P;
+            for block in 0..blocks {
+                let target = &mut out_row[block * P * oc..(block + 1) * P * oc];
+                conv_block::<V, VECS, P>(
+                    shape,
+                    padded,
+                    weights,
+                    &bias,
+                    relu,
+                    [oy, block * P],
+                    channels,
+                    target,
+                );
+            }
+            for ox in blocks * P..ow {
+                let target = &mut out_row[ox * oc..(ox + 1) * oc];
+                conv_block::<V, VECS, 1>(
+                    shape,
+                    padded,
+                    weights,
+                    &bias,
+                    relu,
+                    [oy, ox],
+                    channels,
+                    target,
+                );
+            }
         }
     }
     true
 }
 
+/// `P` output pixels from `(oy, ox)` on, output channels `channels..channels + VECS * LANES`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // one block of one convolution
 fn conv_block<V: Vector, const VECS: usize, const P: usize>(
@@ -191,12 +218,12 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize>(
     weights: &[f32],
     bias: &[V; VECS],
     relu: bool,
-    oy: usize,
-    ox: usize,
+    [oy, ox]: [usize; 2],
+    channels: usize,
     target: &mut [f32],
 ) {
     let ic = shape.in_channels;
-    let oc = VECS * V::LANES;
+    let oc = shape.out_channels;
     let [kh, kw] = shape.kernel;
     let [sy, sx] = shape.stride;
     let row = shape.padded_width * ic;
@@ -212,11 +239,12 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize>(
             // check per value, which on the V5 would cost more than the arithmetic.
             let (taps, span) = (taps.as_ptr(), span.as_ptr());
             for c in 0..ic {
-                // SAFETY: c < ic, v < VECS and p < P, so c * oc + v * LANES + LANES <= ic * oc
-                // (the length of `taps`) and p * step + c < (P - 1) * step + ic (the length
-                // of `span`).
+                // SAFETY: c < ic and channels + (v + 1) * LANES <= oc (`conv` checks that the
+                // groups tile the channels), so c * oc + channels + v * LANES + LANES <= ic * oc,
+                // the length of `taps`; p < P, so p * step + c < (P - 1) * step + ic, the
+                // length of `span`.
                 let w: [V; VECS] = core::array::from_fn(|v| unsafe {
-                    V::load_unchecked(taps.add(c * oc + v * V::LANES))
+                    V::load_unchecked(taps.add(c * oc + channels + v * V::LANES))
                 });
                 let xs: [V; P] =
                     core::array::from_fn(|p| V::splat(unsafe { *span.add(p * step + c) }));
@@ -232,7 +260,7 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize>(
     for (p, acc) in acc.iter().enumerate() {
         for (v, &a) in acc.iter().enumerate() {
             let value = if relu { V::max(a, zero) } else { a };
-            value.store(&mut target[p * oc + v * V::LANES..]);
+            value.store(&mut target[p * oc + channels + v * V::LANES..]);
         }
     }
 }
