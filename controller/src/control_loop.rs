@@ -62,6 +62,10 @@ pub struct LoopCounters {
     pub non_finite_outputs: u64,
     /// Frames whose header did not describe a YUYV frame of their camera's size.
     pub invalid_frames: u64,
+    /// Frames stamped after the tick's time: left from before an episode restart (a
+    /// simulator's last frames, queued but never consumed), or a clock fault. Refused, so a
+    /// command is never computed from another episode's image.
+    pub future_frames: u64,
     /// Ticks that started after their deadline had already passed.
     pub deadline_misses: u64,
 }
@@ -193,6 +197,10 @@ impl<P: Policy, C: Clock> ControlLoop<P, C> {
     ) -> bool {
         if CameraFrame::<W, H>::check_header(frame.header()).is_err() {
             self.counters.invalid_frames += 1;
+            return false;
+        }
+        if frame.header().timestamp_ns > now.as_nanos() {
+            self.counters.future_frames += 1;
             return false;
         }
         self.sync
@@ -494,6 +502,36 @@ mod tests {
             ..Default::default()
         });
         assert_eq!(rig.tick(Some(0), Some(0)).speed.forward(), 1.0);
+    }
+
+    #[test]
+    fn a_frame_from_before_an_episode_restart_is_refused() {
+        let mut rig = Rig::new(BrightnessPolicy::default());
+        for sequence in 0..50 {
+            rig.tick(Some(sequence), Some(sequence));
+        }
+        // The simulator starts a new episode: the clock goes back, and the last frame of the
+        // old episode, stamped at its time, is still queued for the top camera.
+        let stale_time = rig.clock.now();
+        rig.control.reset_episode();
+        rig.clock.restart_at(Timestamp::ZERO);
+        rig.top.restamp(976, stale_time);
+        rig.bottom.restamp(0, Timestamp::ZERO);
+        let command = rig.control.tick(CameraInput {
+            top: Some(&rig.top),
+            bottom: Some(&rig.bottom),
+        });
+        assert!(command.is_stop(), "computed from the old episode's image");
+        assert_eq!(rig.control.counters().future_frames, 1);
+        // The new episode's own frames are taken.
+        rig.clock.advance(Duration::from_millis(10));
+        rig.top.restamp(0, rig.clock.now());
+        let command = rig.control.tick(CameraInput {
+            top: Some(&rig.top),
+            bottom: None,
+        });
+        assert!(command.is_new(), "{command:?}");
+        assert_eq!((command.top_sequence, command.bottom_sequence), (0, 0));
     }
 
     #[test]

@@ -308,12 +308,13 @@ fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) {
         counters.non_finite_outputs
     );
     println!(
-        "frames accepted top {} bottom {}; duplicates {:?}, out of order {:?}, invalid {}; deadline misses {}",
+        "frames accepted top {} bottom {}; duplicates {:?}, out of order {:?}, invalid {}, stamped after their tick {}; deadline misses {}",
         sync.accepted[0],
         sync.accepted[1],
         sync.duplicates,
         sync.out_of_order,
         counters.invalid_frames,
+        counters.future_frames,
         counters.deadline_misses
     );
     match control.tick_stats().summary() {
