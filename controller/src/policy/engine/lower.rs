@@ -722,8 +722,6 @@ impl Lowerer<'_> {
                 });
             }
         }
-        self.producer
-            .insert(output.to_owned(), self.steps.len().saturating_sub(1));
         self.define_tensor(output, to, gathered, Layout::Standard);
         Ok(())
     }
@@ -779,8 +777,6 @@ impl Lowerer<'_> {
                 at += len;
             }
         }
-        self.producer
-            .insert(output.to_owned(), self.steps.len().saturating_sub(1));
         self.define_tensor(output, to, joined, Layout::Standard);
         Ok(())
     }
@@ -839,19 +835,7 @@ impl Lowerer<'_> {
             }
             None => vec![0.0; n],
         };
-        let to = self.buffer(m * n);
-        self.push(
-            output,
-            Step::Dense {
-                from: x,
-                weights: relaid,
-                bias,
-                rows: m,
-                relu: false,
-                to,
-            },
-        );
-        self.define_tensor(output, to, vec![m, n], Layout::Standard);
+        self.dense(output, x, relaid, bias, vec![m, n]);
         Ok(())
     }
 
@@ -867,29 +851,43 @@ impl Lowerer<'_> {
         if xk != k {
             return unsupported(format!("A {x_shape:?} times B {w_shape:?}"));
         }
-        let m: usize = leading.iter().product();
         let mut relaid = vec![0.0; n * k];
         for row in 0..n {
             for col in 0..k {
                 relaid[row * k + col] = weights[col * n + row];
             }
         }
-        let to = self.buffer(m * n);
+        let mut shape = leading.to_vec();
+        shape.push(n);
+        self.dense(output, x, relaid, vec![0.0; n], shape);
+        Ok(())
+    }
+
+    /// A dense layer on the rows of `x` (weights `[out][in]`) into a new value of `shape`,
+    /// whose last dimension is the outputs and the rest the rows.
+    fn dense(
+        &mut self,
+        output: &str,
+        x: BufferId,
+        weights: Vec<f32>,
+        bias: Vec<f32>,
+        shape: Vec<usize>,
+    ) {
+        let outputs = bias.len();
+        let rows = shape.iter().product::<usize>() / outputs.max(1);
+        let to = self.buffer(rows * outputs);
         self.push(
             output,
             Step::Dense {
                 from: x,
-                weights: relaid,
-                bias: vec![0.0; n],
-                rows: m,
+                weights,
+                bias,
+                rows,
                 relu: false,
                 to,
             },
         );
-        let mut shape = leading.to_vec();
-        shape.push(n);
         self.define_tensor(output, to, shape, Layout::Standard);
-        Ok(())
     }
 
     fn binary(&mut self, op: &str, a: &str, b: Option<&str>, output: &str) -> Lowered<()> {
