@@ -174,7 +174,7 @@ fn both_transports_give_identical_trajectories() {
 }
 
 #[test]
-fn a_killed_controller_fails_the_episode_within_100_ms() {
+fn a_killed_controller_fails_the_episode_within_a_liveness_interval() {
     let _serial = one_at_a_time();
     let dir = scratch("killed-controller");
     let name = domain_name("killed");
@@ -207,8 +207,11 @@ fn a_killed_controller_fails_the_episode_within_100_ms() {
     assert_eq!(result.outcome, Outcome::ControllerLost);
     let failure = result.failure.expect("a reason");
     assert!(failure.contains("died"), "{failure}");
+    // The link checks every 10 ms whether the controller lives (LinkTimeouts::liveness):
+    // a kill is noticed within that interval plus the check, far inside the 2 s answer
+    // timeout it would otherwise wait for.
     assert!(
-        noticed < Duration::from_millis(100),
+        noticed < Duration::from_millis(40),
         "noticed after {noticed:?}"
     );
 }
@@ -237,7 +240,9 @@ fn a_dead_simulator_gets_stops_and_a_new_one_carries_on() {
             .spawn()
             .expect("the simulator starts"),
     ));
-    // ...until the controller computes from its frames; then it is killed.
+    // ...until the controller computes from its frames; then it is killed. The monitor is
+    // polled every millisecond throughout, so the wall time of the last answered tick is
+    // known to about that.
     let deadline = Instant::now() + START;
     loop {
         if let Some(command) = monitor.try_next().expect("receive")
@@ -248,26 +253,46 @@ fn a_dead_simulator_gets_stops_and_a_new_one_carries_on() {
         assert!(Instant::now() < deadline, "no command computed from frames");
         std::thread::sleep(Duration::from_millis(1));
     }
+    let mut last_answer = Instant::now();
+    while last_answer.elapsed() < Duration::from_millis(200) {
+        if monitor.try_next().expect("receive").is_some() {
+            last_answer = Instant::now();
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
     simulator.child().kill().expect("kill the simulator");
     let killed_at = Instant::now();
     simulator.child().wait().expect("reaped");
-    while monitor.try_next().expect("receive").is_some() {}
     let first_stop = loop {
         if let Some(command) = monitor.try_next().expect("receive") {
-            break command;
+            if command.is_stop() {
+                break command;
+            }
+            last_answer = Instant::now();
         }
         assert!(killed_at.elapsed() < Duration::from_secs(5), "no stop");
         std::thread::sleep(Duration::from_millis(1));
     };
-    let after = killed_at.elapsed();
-    println!("first stop {after:?} after the simulator was killed");
-    assert!(first_stop.is_stop(), "{first_stop:?}");
-    assert!(after < Duration::from_millis(300), "stop after {after:?}");
-    for _ in 0..3 {
-        std::thread::sleep(Duration::from_millis(15));
-        let next = monitor.try_next().expect("receive");
-        assert!(next.is_none_or(|c| c.is_stop()), "only stops: {next:?}");
+    let silence = last_answer.elapsed();
+    println!("first stop {silence:?} after the last answered tick (the limit is 100 ms)");
+    assert!(!first_stop.is_new(), "{first_stop:?}");
+    // DESIGN.md: a stop once input has been silent for 3 camera periods, 100 ms (checked every
+    // 10 ms tick period); not before, and not much later.
+    assert!(
+        (Duration::from_millis(90)..Duration::from_millis(150)).contains(&silence),
+        "stop after {silence:?} of silence"
+    );
+    // From then on a stop every tick period (10 ms), and nothing else.
+    let mut stops = 0;
+    let watched = Instant::now();
+    while watched.elapsed() < Duration::from_millis(60) {
+        if let Some(next) = monitor.try_next().expect("receive") {
+            assert!(next.is_stop(), "only stops: {next:?}");
+            stops += 1;
+        }
+        std::thread::sleep(Duration::from_millis(1));
     }
+    assert!(stops >= 3, "a stop every 10 ms: {stops} in 60 ms");
 
     // A new simulator finds the controller waiting, and cleans up after the dead one.
     let output = dribble(&[

@@ -3,7 +3,8 @@
 //!
 //! A counting global allocator counts the allocations made on this test's thread while
 //! counting is switched on; the tick runs over random frames with drops, duplicates,
-//! reordering and camera silences, so every branch of the tick is exercised.
+//! reordering, camera silences and broken headers, with a policy that sometimes fails or
+//! answers NaN, so every branch of the tick is exercised (the counters prove each ran).
 
 mod support;
 
@@ -11,7 +12,8 @@ use std::time::Duration;
 
 use dribble_controller::policy::{BrightnessPolicy, Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::{
-    CameraFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, Policy,
+    CameraFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, Policy, PolicyError,
+    PolicyInput, PolicyOutput,
 };
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -20,10 +22,38 @@ use support::counting_allocator::{CountingAllocator, count_allocations};
 #[global_allocator]
 static ALLOCATOR: CountingAllocator = CountingAllocator;
 
+/// The test policy, except that about one step in 50 fails (as an allocation-free engine
+/// reports a failure) and one in 50 answers NaN.
+#[derive(Debug, Default)]
+struct FlakyPolicy {
+    inner: BrightnessPolicy,
+    steps: u64,
+}
+
+impl Policy for FlakyPolicy {
+    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        self.steps += 1;
+        // A fixed pattern, different from the cameras' random one.
+        match self.steps.wrapping_mul(0x9e37_79b9_7f4a_7c15) % 50 {
+            0 => Err(PolicyError::Engine("flaky on purpose")),
+            1 => Ok(PolicyOutput {
+                forward: f32::NAN,
+                ..PolicyOutput::default()
+            }),
+            _ => self.inner.step(input),
+        }
+    }
+
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+}
+
 /// A camera that mostly delivers its next frame, and sometimes drops one, sends one twice,
-/// sends an older one, or goes silent for a while.
+/// sends an older one, sends one with a broken header, or goes silent for a while.
 struct UnreliableCamera<const W: usize, const H: usize> {
-    /// Frames with random pixels, made before counting starts; sent in turn.
+    /// Frames with random pixels, made before counting starts; sent in turn. The last one
+    /// has a header no camera may send (a wrong width).
     pool: Vec<Box<CameraFrame<W, H>>>,
     next_sequence: u64,
     silent_ticks: u32,
@@ -31,13 +61,14 @@ struct UnreliableCamera<const W: usize, const H: usize> {
 
 impl<const W: usize, const H: usize> UnreliableCamera<W, H> {
     fn new(rng: &mut ChaCha8Rng) -> Self {
-        let pool = (0..3)
+        let mut pool: Vec<_> = (0..4)
             .map(|_| {
                 let mut frame = CameraFrame::<W, H>::new_boxed();
                 rng.fill_bytes(frame.as_bytes_mut());
                 frame
             })
             .collect();
+        pool[3].header_mut().width = W as u32 + 1;
         Self {
             pool,
             next_sequence: 0,
@@ -61,7 +92,13 @@ impl<const W: usize, const H: usize> UnreliableCamera<W, H> {
                 self.next_sequence
             }
             88..94 => self.next_sequence,                   // duplicate
-            94..99 => self.next_sequence.saturating_sub(3), // late, out of order
+            94..98 => self.next_sequence.saturating_sub(3), // late, out of order
+            98 => {
+                let broken = &mut self.pool[3];
+                broken.header_mut().sequence = self.next_sequence + 1;
+                broken.header_mut().timestamp_ns = clock.now().as_nanos();
+                return Some(broken);
+            }
             _ => {
                 self.silent_ticks = rng.random_range(5..20); // 50 to 200 ms silence
                 return None;
@@ -102,7 +139,7 @@ fn unreliable_ticks<P: Policy>(policy: P, ticks: u32) -> ((u64, u64), ControlLoo
 
 #[test]
 fn ten_thousand_ticks_allocate_nothing_after_start_up() {
-    let ((allocations, bytes), control) = unreliable_ticks(BrightnessPolicy::default(), 10_000);
+    let ((allocations, bytes), control) = unreliable_ticks(FlakyPolicy::default(), 10_000);
     println!("allocations in 10,000 ticks after warm-up: {allocations} ({bytes} bytes)");
 
     let counters = *control.counters();
@@ -113,6 +150,9 @@ fn ten_thousand_ticks_allocate_nothing_after_start_up() {
     assert!(counters.repeated_commands > 1000, "{counters:?}");
     assert!(counters.camera_stops > 0, "{counters:?}");
     assert!(counters.deadline_misses > 0, "{counters:?}");
+    assert!(counters.invalid_frames > 0, "{counters:?}");
+    assert!(counters.policy_failures > 0, "{counters:?}");
+    assert!(counters.non_finite_outputs > 0, "{counters:?}");
     assert!(sync.duplicates.iter().all(|&n| n > 0), "{sync:?}");
     assert!(sync.out_of_order.iter().all(|&n| n > 0), "{sync:?}");
     assert!(sync.restarts.iter().all(|&n| n > 0), "{sync:?}");

@@ -386,30 +386,51 @@ mod tests {
     }
 
     proptest! {
+        /// Checked against a model written from DESIGN.md, not from the code: a camera's
+        /// frame is taken if it is its first, or newer than its newest, or comes after more
+        /// than 3 camera periods (of 1/30 s) without one (a restart: its numbers begin afresh).
+        /// A command is computed from the newest frames, and never from a frame older than
+        /// one already used since the camera's last restart.
         #[test]
         fn never_computes_from_a_frame_older_than_one_already_used(
             events in proptest::collection::vec(event(), 1..200)
         ) {
+            let limit = Duration::from_secs(1) / 30 * 3;
             let mut sync = CameraSync::new(SyncConfig::default());
             let mut now = Timestamp::ZERO;
-            // Per camera: the sequence the last computed command used.
+            // Per camera, the model: the newest taken frame and when it came; the sequence
+            // the last computed command used since the camera's last restart.
+            let mut newest: [Option<(u64, Timestamp)>; 2] = [None, None];
             let mut last_used: [Option<u64>; 2] = [None, None];
             for (event, advance_ms) in events {
                 now = now + Duration::from_millis(advance_ms);
                 match event {
                     Event::Frame { camera, sequence } => {
-                        if sync.offer(camera, sequence, now) == FrameVerdict::AcceptedAfterRestart {
-                            // A restarted camera's numbers begin afresh.
-                            last_used[camera.index()] = None;
+                        let i = camera.index();
+                        let (taken, restart) = match newest[i] {
+                            None => (true, false),
+                            Some((_, came)) if now.saturating_since(came) > limit => (true, true),
+                            Some((newest_sequence, _)) => (sequence > newest_sequence, false),
+                        };
+                        let verdict = sync.offer(camera, sequence, now);
+                        prop_assert_eq!(verdict.is_accepted(), taken, "{:?} {} at {:?}", camera, sequence, now);
+                        prop_assert_eq!(verdict == FrameVerdict::AcceptedAfterRestart, restart);
+                        if restart {
+                            last_used[i] = None;
+                        }
+                        if taken {
+                            newest[i] = Some((sequence, now));
                         }
                     }
                     Event::Tick => match sync.decide(now) {
                         SyncDecision::Compute { top_sequence, bottom_sequence } => {
-                            for (used, sequence) in last_used.iter_mut().zip([top_sequence, bottom_sequence]) {
-                                if let Some(previous) = *used {
-                                    prop_assert!(sequence > previous, "{sequence} after {previous}");
+                            let sequences = [top_sequence, bottom_sequence];
+                            for (i, sequence) in sequences.into_iter().enumerate() {
+                                prop_assert_eq!(Some(sequence), newest[i].map(|(s, _)| s), "the newest frame");
+                                if let Some(previous) = last_used[i] {
+                                    prop_assert!(sequence > previous, "{} after {}", sequence, previous);
                                 }
-                                *used = Some(sequence);
+                                last_used[i] = Some(sequence);
                             }
                         }
                         SyncDecision::Repeat | SyncDecision::Stop(_) => {}

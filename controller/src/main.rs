@@ -101,8 +101,13 @@ fn main() -> anyhow::Result<()> {
         engine: cli.engine,
         isa: cli.isa,
     };
-    if !(cli.rate_hz.is_finite() && cli.rate_hz > 0.0 && cli.rate_hz <= 10_000.0) {
-        bail!("--rate-hz must be in (0, 10000], got {}", cli.rate_hz);
+    // Below 1 Hz the camera-silence limit (100 ms) would stop every tick; the bound also keeps
+    // the period far inside what a `Duration` holds.
+    if !(1.0..=10_000.0).contains(&cli.rate_hz) {
+        bail!(
+            "--rate-hz must be in [1, 10000] ticks per second, got {}",
+            cli.rate_hz
+        );
     }
     let config = LoopConfig {
         tick_period: Duration::from_secs_f64(1.0 / cli.rate_hz),

@@ -1,6 +1,6 @@
 //! The command message the controller publishes every tick (DESIGN.md, "Shared memory").
 
-use crate::speed_command::SpeedCommand;
+use crate::speed_command::{NonFiniteCommand, SpeedCommand};
 use crate::units::Timestamp;
 
 /// Frame sequence recorded when no frame was used (before the first computed command).
@@ -75,6 +75,15 @@ impl MotionCommand {
 
     pub const fn is_stop(&self) -> bool {
         self.flags.contains(CommandFlags::STOP)
+    }
+
+    /// The command with its speed checked as [`SpeedCommand::new`] checks it: read from
+    /// shared memory, the bytes may come from any process, so a NaN or infinite speed is
+    /// refused and a component outside [-1, 1] clamped before it can reach a walk.
+    pub fn checked(mut self) -> Result<Self, NonFiniteCommand> {
+        let [forward, left, turn] = self.speed.as_array();
+        self.speed = SpeedCommand::new(forward, left, turn)?;
+        Ok(self)
     }
 }
 

@@ -29,10 +29,18 @@ fn dry_run_computes_commands_and_prints_its_statistics() {
 
 #[test]
 fn a_nonsense_rate_is_refused() {
-    let output = controller_command()
-        .args(["--rate-hz", "0", "dry-run"])
-        .output()
-        .expect("run dribble-controller");
-    assert!(!output.status.success());
-    assert!(String::from_utf8_lossy(&output.stderr).contains("--rate-hz must be in (0, 10000]"));
+    for rate in ["0", "1e-30", "0.5", "-3", "NaN", "inf", "20000"] {
+        let output = controller_command()
+            .arg(format!("--rate-hz={rate}"))
+            .args(["dry-run", "--seconds", "0.1"])
+            .output()
+            .expect("run dribble-controller");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{rate}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{rate}: {stderr}");
+        assert!(
+            stderr.contains("--rate-hz must be in [1, 10000]"),
+            "{rate}: {stderr}"
+        );
+    }
 }

@@ -309,3 +309,39 @@ fn the_fixed_rate_loop_serves_a_live_camera() {
         "{counters:?}"
     );
 }
+
+#[test]
+fn a_non_finite_command_from_shared_memory_is_refused_and_a_wild_one_clamped() {
+    use dribble_controller::SpeedCommand;
+    use dribble_controller::transport::ControllerPorts;
+    let domain = domain("foreign-command");
+    // A foreign controller: it writes whatever bytes it likes into the command sample.
+    let mut foreign = Iceoryx2ControllerPorts::open(&domain).expect("controller ports");
+    let mut sim = Iceoryx2SimulatorPorts::open(&domain, "test-simulator").expect("simulator ports");
+    let raw_speed = |speed: [f32; 3]| {
+        // SAFETY: SpeedCommand is repr(C) of three f32; this forges what another process
+        // could have written into shared memory, bypassing SpeedCommand::new on purpose.
+        #[allow(unsafe_code)]
+        unsafe {
+            std::mem::transmute::<[f32; 3], SpeedCommand>(speed)
+        }
+    };
+    let mut command = MotionCommand::initial_stop();
+    command.sequence = 7;
+    command.speed = raw_speed([f32::NAN, 0.0, 0.5]);
+    foreign.publish(&command).expect("publish");
+    let error = sim
+        .next_command(Duration::from_secs(1))
+        .expect_err("a NaN speed is refused");
+    assert!(
+        matches!(error, TransportError::MalformedCommand { sequence: 7, .. }),
+        "{error}"
+    );
+    assert!(error.to_string().contains("non-finite speed"), "{error}");
+
+    command.sequence = 8;
+    command.speed = raw_speed([3.0, -40.0, 0.5]);
+    foreign.publish(&command).expect("publish");
+    let clamped = any_command(&mut sim, Duration::from_secs(1)).expect("the command");
+    assert_eq!(clamped.speed.as_array(), [1.0, -1.0, 0.5]);
+}

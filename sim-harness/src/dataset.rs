@@ -225,9 +225,25 @@ pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>, DatasetError>
     Ok(arrays)
 }
 
+/// The size in bytes of one element of a `.npy` type this crate writes; `None` for any other.
+fn item_size(descr: &str) -> Option<usize> {
+    match descr {
+        "|u1" | "|i1" | "|b1" => Some(1),
+        "<f4" | "<i4" | "<u4" => Some(4),
+        "<f8" | "<i8" | "<u8" => Some(8),
+        _ => None,
+    }
+}
+
+/// Parses a `.npy` (format 1.0) as [`npy`] writes it. Every field is checked against the
+/// bytes: a header that lies about its shape, its type or its length is an error, never a
+/// panic (the files come from disk and may be truncated or hostile).
 fn parse_npy(raw: &[u8]) -> Result<NpyArray, String> {
     if raw.len() < 10 || &raw[..6] != b"\x93NUMPY" {
         return Err("not a .npy array".into());
+    }
+    if raw[6] != 1 {
+        return Err(format!("unsupported .npy version {}.{}", raw[6], raw[7]));
     }
     let header_len = usize::from(u16::from_le_bytes([raw[8], raw[9]]));
     let header = std::str::from_utf8(raw.get(10..10 + header_len).ok_or("truncated header")?)
@@ -241,18 +257,35 @@ fn parse_npy(raw: &[u8]) -> Result<NpyArray, String> {
         .next()
         .unwrap_or("")
         .to_owned();
-    let shape_text = field("'shape'")?;
-    let shape_text = &shape_text[1..shape_text.find(')').ok_or("bad shape")?];
+    let item = item_size(&descr).ok_or(format!("unsupported element type {descr:?}"))?;
+    if !field("'fortran_order'")?.starts_with("False") {
+        return Err("Fortran-ordered arrays are not supported".into());
+    }
+    let shape_text = field("'shape'")?
+        .strip_prefix('(')
+        .ok_or("shape is not a tuple")?;
+    let shape_text = &shape_text[..shape_text.find(')').ok_or("shape tuple not closed")?];
     let shape = shape_text
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<usize>().map_err(|e| e.to_string()))
+        .map(|s| s.parse::<usize>().map_err(|e| format!("shape {s:?}: {e}")))
         .collect::<Result<Vec<_>, _>>()?;
+    let bytes = shape
+        .iter()
+        .try_fold(item, |total, &dim| total.checked_mul(dim))
+        .ok_or("shape overflows")?;
+    let data = &raw[10 + header_len..];
+    if data.len() != bytes {
+        return Err(format!(
+            "shape {shape:?} of {descr} needs {bytes} bytes, the file holds {}",
+            data.len()
+        ));
+    }
     Ok(NpyArray {
         descr,
         shape,
-        data: raw[10 + header_len..].to_vec(),
+        data: data.to_vec(),
     })
 }
 
@@ -480,8 +513,8 @@ mod tests {
         assert_eq!(one_dimensional.shape, vec![5]);
     }
 
-    #[test]
-    fn an_episode_round_trips_and_is_byte_identical() {
+    /// Three rows of a small episode, built from scratch on every call.
+    fn small_recording() -> EpisodeRecording {
         let mut recording = EpisodeRecording::default();
         let (mut top, bottom) = (TopThumbnail::black(), BottomThumbnail::black());
         top.as_bytes_mut()[7] = 99;
@@ -497,21 +530,83 @@ mod tests {
                 policy_command: None,
             });
         }
+        recording
+    }
+
+    #[test]
+    fn an_episode_round_trips_and_two_recordings_are_byte_identical() {
         let directory = std::env::temp_dir().join(format!("dribble-npz-{}", std::process::id()));
         fs::create_dir_all(&directory).expect("dir");
-        let path = directory.join(episode_file(7));
-        recording.write(&path).expect("write");
-        assert_eq!(
-            recording.to_npz(),
-            fs::read(&path).expect("read"),
-            "byte-identical"
-        );
-        let arrays = read_npz(&path).expect("read back");
+        let (first, second) = (directory.join("first.npz"), directory.join("second.npz"));
+        small_recording().write(&first).expect("write");
+        small_recording().write(&second).expect("write");
+        let bytes = fs::read(&first).expect("read");
+        assert!(bytes == fs::read(&second).expect("read"), "byte-identical");
+        let arrays = read_npz(&first).expect("read back");
         assert_eq!(arrays["top"].shape, vec![3, 120, 160]);
         assert_eq!(arrays["top"].data[7], 99);
         assert_eq!(arrays["command"].as_f32()[..3], [0.5, -0.25, 0.0]);
         assert_eq!(arrays["phase"].data, vec![3, 3, 3]);
         assert_eq!(arrays["time_s"].descr, "<f8");
         fs::remove_dir_all(directory).expect("clean up");
+    }
+
+    #[test]
+    fn npy_headers_that_lie_are_errors() {
+        let good = npy("<f4", &[2, 3], &[0; 24]);
+        let header_end = 10 + usize::from(u16::from_le_bytes([good[8], good[9]]));
+        let with_header = |header: &str| {
+            let mut bytes = good[..10].to_vec();
+            let padded = format!("{header:<width$}", width = header_end - 10);
+            bytes.extend_from_slice(padded.as_bytes());
+            bytes.extend_from_slice(&good[header_end..]);
+            bytes
+        };
+        let cases = [
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': ), }",
+                "tuple",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (, }",
+                "not closed",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 4), }",
+                "needs 32 bytes",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (9999999999999, 9999999999), }",
+                "overflows",
+            ),
+            (
+                "{'descr': '<c16', 'fortran_order': False, 'shape': (2, 3), }",
+                "element type",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }",
+                "Fortran",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (2, x), }",
+                "shape \"x\"",
+            ),
+        ];
+        for (header, expected) in cases {
+            let error = parse_npy(&with_header(header)).expect_err(header);
+            assert!(error.contains(expected), "{header}: {error}");
+        }
+        assert!(
+            parse_npy(&good[..good.len() - 1])
+                .expect_err("short")
+                .contains("holds 23")
+        );
+        assert!(parse_npy(&good[..20]).is_err(), "truncated header");
+        assert!(
+            parse_npy(&with_header(
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }"
+            ))
+            .is_ok()
+        );
     }
 }

@@ -24,9 +24,9 @@ pub struct WorldConfig {
     pub ball_mass_kg: f32,
     pub ball_restitution: f32,
     pub ball_friction: f32,
-    /// Deceleration of a rolling ball by the carpet, m/s². With 0.35, a ball rolling at
-    /// 0.5 m/s stops after about 0.36 m, one at 1 m/s after about 1.4 m (a ball knocked
-    /// into motion slides first and keeps about 5/7 of its speed once it rolls).
+    /// Deceleration of a rolling ball by the carpet, m/s². With 0.35, a ball already
+    /// rolling at 1 m/s stops after v²/2a = 1.4 m; a ball knocked to 1 m/s without spin
+    /// slides first and keeps 5/7 of its speed once it rolls, so it stops after 0.74 m.
     pub rolling_deceleration: f32,
     /// Height of the boards around the carpet, metres.
     pub board_height: f32,

@@ -295,9 +295,9 @@ impl Network {
                     (&names.top, input.top.as_bytes()),
                     (&names.bottom, input.bottom.as_bytes()),
                 ] {
-                    let values = network
-                        .input_mut(name)
-                        .ok_or_else(|| PolicyError::Inference(format!("no input {name}")))?;
+                    let values = network.input_mut(name).ok_or(PolicyError::Engine(
+                        "a thumbnail input of the plan is missing",
+                    ))?;
                     for (value, &pixel) in values.iter_mut().zip(pixels) {
                         *value = f32::from(pixel) * *scale;
                     }
@@ -310,17 +310,13 @@ impl Network {
                         turn,
                     },
                     _ => {
-                        return Err(PolicyError::Inference(
-                            "the command output is not 3 values".into(),
-                        ));
+                        return Err(PolicyError::Engine("the command output is not 3 values"));
                     }
                 };
                 if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent
                     && !(network.carry(h_out, h_in) && network.carry(c_out, c_in))
                 {
-                    return Err(PolicyError::Inference(
-                        "the recurrent state cannot be carried".into(),
-                    ));
+                    return Err(PolicyError::Engine("the recurrent state cannot be carried"));
                 }
                 Ok(command)
             }

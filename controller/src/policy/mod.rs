@@ -40,10 +40,14 @@ pub struct PolicyOutput {
 /// A policy step that produced no command. The tick publishes a stop and counts it.
 #[derive(Debug, thiserror::Error)]
 pub enum PolicyError {
-    /// The inference engine failed; the message says why. Building the message may allocate,
-    /// which is acceptable on this failure path only.
+    /// The tract engine failed; the message (tract's error) says why. tract allocates on
+    /// every run anyway, so building the message does too.
     #[error("inference failed: {0}")]
     Inference(String),
+    /// An allocation-free engine failed for a reason known when it was written: reporting
+    /// it allocates nothing, so the failure path of a tick stays allocation-free.
+    #[error("inference failed: {0}")]
+    Engine(&'static str),
 }
 
 /// Why a policy could not be loaded. Every variant names the file at fault.

@@ -535,15 +535,18 @@ impl SimulatorPorts for Iceoryx2SimulatorPorts {
     }
 
     fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
-        if let Some(command) = next_message(&self.commands)? {
-            return Ok(Some(command));
-        }
-        wait_for_event(
-            &self.command_events,
-            timeout,
-            "waiting for a command failed",
-        )?;
-        next_message(&self.commands)
+        let command = match next_message(&self.commands)? {
+            Some(command) => Some(command),
+            None => {
+                wait_for_event(
+                    &self.command_events,
+                    timeout,
+                    "waiting for a command failed",
+                )?;
+                next_message(&self.commands)?
+            }
+        };
+        command.map(checked_command).transpose()
     }
 }
 
@@ -570,6 +573,16 @@ impl CommandMonitor {
     pub fn try_next(&mut self) -> Result<Option<MotionCommand>, TransportError> {
         next_message(&self.commands)
     }
+}
+
+/// A command from shared memory, checked before it goes anywhere near a walk.
+fn checked_command(command: MotionCommand) -> Result<MotionCommand, TransportError> {
+    command
+        .checked()
+        .map_err(|_| TransportError::MalformedCommand {
+            sequence: command.sequence,
+            speed: format!("{:?}", command.speed.as_array()),
+        })
 }
 
 fn send_frame<T: core::fmt::Debug + ZeroCopySend>(

@@ -42,6 +42,10 @@ pub enum TransportError {
         service: &'static str,
         role: &'static str,
     },
+    /// A command read from shared memory holds a speed no walk may receive (NaN or
+    /// infinite): a foreign or broken controller published it.
+    #[error("command {sequence} from the controller has a non-finite speed {speed}: refused")]
+    MalformedCommand { sequence: u64, speed: String },
 }
 
 impl TransportError {
