@@ -191,6 +191,7 @@ pub fn run(args: &ScoreArgs) -> anyhow::Result<()> {
             "error": mean,
             "rows": overall.rows,
             "step_ms": {"median": median_ms, "p99": p99_ms},
+            "engine": policy.engine().to_string(),
             "phases": Phase::ALL.iter().zip(&phases).map(|(p, s)| {
                 (p.name().to_owned(), json!({"error": s.mean(), "rows": s.rows}))
             }).collect::<serde_json::Map<_, _>>(),

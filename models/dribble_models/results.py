@@ -41,6 +41,9 @@ def model_row(name: str, directory: Path) -> dict:
     row["test_error"] = test["error"] if test else manifest["training"].get("test_error")
     row["phases"] = {p: (test["phases"][p]["error"] if test else None) for p in PHASES}
     row["step_ms"] = test["step_ms"]["median"] if test else None
+    # Scores written before `dribble score` named its engine were all run under tract; the
+    # compiled engine's name carries its instruction set, e.g. "compiled (avx2+fma)".
+    row["engine"] = (test.get("engine") or "tract") if test else None
     if evaluation:
         episodes = evaluation["episodes"]
         goals = [e["duration_s"] for e in episodes if e["outcome"] == "goal"]
@@ -65,7 +68,7 @@ def table(rows: list[dict]) -> str:
         how = f"{t['epochs']} epochs (kept {t.get('best_epoch', '-')}), {t.get('wall_time_s', 0) / 60:.0f} min"
         goals = f"{row['goals']}" if "goals" in row else "-"
         seconds = f"{row['time_to_goal_s']:.1f} s" if row.get("time_to_goal_s") else "-"
-        forward = f"{row['step_ms']:.2f} ms (tract, 1 core of this machine)" if row["step_ms"] else "-"
+        forward = f"{row['step_ms']:.2f} ms ({row['engine']}, 1 core of this machine)" if row["step_ms"] else "-"
         selection = read(Path(row["directory"]) / "select.json")
         held_out = f"{sum(e['outcome'] == 'goal' for e in selection['episodes'])}" if selection else "-"
         validation = fmt(t.get("validation_error"))
