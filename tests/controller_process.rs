@@ -253,8 +253,8 @@ fn a_dead_simulator_gets_stops_and_a_new_one_carries_on() {
         assert!(Instant::now() < deadline, "no command computed from frames");
         std::thread::sleep(Duration::from_millis(1));
     }
-    let mut last_answer = Instant::now();
-    while last_answer.elapsed() < Duration::from_millis(200) {
+    let (watching, mut last_answer) = (Instant::now(), Instant::now());
+    while watching.elapsed() < Duration::from_millis(200) {
         if monitor.try_next().expect("receive").is_some() {
             last_answer = Instant::now();
         }

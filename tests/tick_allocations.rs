@@ -167,6 +167,7 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_the_compiled_engine
         "fixtures/hcnn",
         "fixtures/rcnn",
         "policy/cnn-modal",
+        "policy/dagger",
     ] {
         let manifest = models.join(name).join("policy.toml");
         if !manifest.is_file() {

@@ -22,6 +22,7 @@ pub mod frame;
 pub mod histogram;
 pub mod motion_command;
 pub mod policy;
+pub mod realtime;
 pub mod shutdown;
 pub mod speed_command;
 pub mod test_pattern;

@@ -9,6 +9,7 @@ use dribble_controller::event_log::{Chain, Level, log};
 use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
 use dribble_controller::policy::{Engine, EngineOptions};
+use dribble_controller::realtime::{self, RealtimeRequest};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts};
@@ -39,6 +40,65 @@ struct Cli {
     command: Command,
 }
 
+/// Real-time settings for the control thread, applied once start-up is done (policy loaded,
+/// ports open). A refused setting logs a warning and the controller runs on, unless
+/// `--require-realtime` is given.
+#[derive(Clone, Copy, Debug, clap::Args)]
+struct RealtimeArgs {
+    /// Do not lock the process's memory (by default `mlockall(MCL_CURRENT | MCL_FUTURE)`,
+    /// so no page fault lands in a tick; needs root, CAP_IPC_LOCK or `ulimit -l`).
+    #[arg(long)]
+    no_lock_memory: bool,
+    /// Run the control thread under SCHED_FIFO at this priority (1-99; needs root,
+    /// CAP_SYS_NICE or an RLIMIT_RTPRIO allowance). The robot package uses 40: above
+    /// ordinary processes, below the motion module.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
+    fifo_priority: Option<u8>,
+    /// Pin the control thread to this CPU (0-based).
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Refuse to start unless every real-time setting asked for took effect.
+    #[arg(long)]
+    require_realtime: bool,
+}
+
+impl RealtimeArgs {
+    /// Applies the settings to the calling thread and logs what is in force.
+    fn apply(&self) -> anyhow::Result<()> {
+        let report = realtime::apply(RealtimeRequest {
+            lock_memory: !self.no_lock_memory,
+            fifo_priority: self.fifo_priority,
+            cpu: self.cpu,
+        });
+        let (level, action) = if self.require_realtime {
+            (Level::Error, "refusing to start (--require-realtime)")
+        } else {
+            (Level::Warn, "running on without it")
+        };
+        for refusal in &report.refused {
+            log(
+                level,
+                "realtime_refused",
+                &[
+                    ("setting", &refusal.setting),
+                    ("reason", &refusal.reason),
+                    ("action", &action),
+                ],
+            );
+        }
+        if self.require_realtime && !report.refused.is_empty() {
+            let refused: Vec<String> = report.refused.iter().map(ToString::to_string).collect();
+            bail!("--require-realtime: {}", refused.join("; "));
+        }
+        log(
+            Level::Info,
+            "realtime",
+            &[("in_force", &report.in_force_text())],
+        );
+        Ok(())
+    }
+}
+
 /// Where the controller's time comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 enum ClockArg {
@@ -67,6 +127,8 @@ enum Command {
         /// Default: $DRIBBLE_DOMAIN, else iceoryx2's default configuration.
         #[arg(long)]
         domain: Option<String>,
+        #[command(flatten)]
+        realtime: RealtimeArgs,
     },
     /// Runs the loop in real time on a built-in moving test pattern instead of the cameras,
     /// with a hand-written brightness policy, then prints its statistics. Use it on a robot
@@ -82,6 +144,8 @@ enum Command {
         /// Drop every Nth bottom frame (0: drop none), to watch the synchroniser cope.
         #[arg(long, default_value_t = 0)]
         drop_bottom_every: u64,
+        #[command(flatten)]
+        realtime: RealtimeArgs,
     },
     /// Runs a policy's forward pass `--steps` times on the test pattern's thumbnails and
     /// exits: the workload for instruction counts (`cross/count` runs it under callgrind
@@ -118,6 +182,7 @@ fn main() -> anyhow::Result<()> {
             policy,
             clock,
             domain,
+            realtime,
         } => {
             let domain = match domain {
                 Some(name) => Domain::new(Some(&name))?,
@@ -128,6 +193,7 @@ fn main() -> anyhow::Result<()> {
                 load_policy(policy.as_deref(), options)?,
                 clock,
                 &domain,
+                realtime,
             );
             if let Err(error) = &result {
                 log(Level::Error, "failed", &[("error", &Chain(error.as_ref()))]);
@@ -139,11 +205,13 @@ fn main() -> anyhow::Result<()> {
             policy,
             seconds,
             drop_bottom_every,
+            realtime,
         } => dry_run(
             config,
             load_policy(policy.as_deref(), options)?,
             seconds,
             drop_bottom_every,
+            realtime,
         ),
     }
 }
@@ -170,6 +238,7 @@ fn run(
     policy: Box<dyn Policy>,
     clock: ClockArg,
     domain: &Domain,
+    realtime: RealtimeArgs,
 ) -> anyhow::Result<()> {
     let stop = shutdown::on_termination().context("cannot handle SIGINT and SIGTERM")?;
     let ports = Iceoryx2ControllerPorts::open(domain).with_context(|| {
@@ -189,6 +258,7 @@ fn run(
             ("cleaned_dead_nodes", &ports.cleaned_dead_nodes()),
         ],
     );
+    realtime.apply()?;
     let on_event = |event: NodeEvent| match event {
         NodeEvent::EpisodeStarted { episode } => {
             log(Level::Info, "episode", &[("episode", &episode)]);
@@ -263,9 +333,11 @@ fn dry_run(
     policy: Box<dyn Policy>,
     seconds: f64,
     drop_bottom_every: u64,
+    realtime: RealtimeArgs,
 ) -> anyhow::Result<()> {
     let duration = Duration::try_from_secs_f64(seconds)
         .with_context(|| format!("--seconds must be a non-negative duration, got {seconds}"))?;
+    realtime.apply()?;
     let camera_period = SyncConfig::default().camera_period;
     let pattern = TestPattern::default();
     let mut top = TopFrame::new_boxed();

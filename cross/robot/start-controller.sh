@@ -4,4 +4,4 @@
 here="$(cd "$(dirname "$0")" && pwd)"
 [ -f /etc/default/dribble-controller ] && . /etc/default/dribble-controller
 # shellcheck disable=SC2086
-exec "$here/bin/dribble-controller" ${DRIBBLE_ARGS:-dry-run --seconds 60}
+exec "$here/bin/dribble-controller" ${DRIBBLE_ARGS:-dry-run --seconds 60 --fifo-priority 40}
