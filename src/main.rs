@@ -8,6 +8,7 @@ mod inspect_command;
 mod record_command;
 mod render_command;
 mod score_command;
+mod soak_command;
 mod thumbnail_command;
 mod trajectory_plot;
 
@@ -46,6 +47,11 @@ enum Command {
     /// R-CNN stepped from a zero state per episode, the H-CNN gated in Rust) and prints the
     /// paper's error, overall and per expert phase.
     Score(score_command::ScoreArgs),
+    /// Runs the controller process with a learned policy against cameras published over
+    /// iceoryx2 at the robot's rates (30 Hz, 100 Hz ticks, CLOCK_MONOTONIC) for minutes or
+    /// hours; samples its memory, open files and command latency every second into a CSV,
+    /// and fails on memory growth, missed deadlines or a lost command.
+    Soak(soak_command::SoakArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -56,5 +62,6 @@ fn main() -> anyhow::Result<()> {
         Command::Record(args) => record_command::run(&args),
         Command::Inspect(args) => inspect_command::run(&args),
         Command::Score(args) => score_command::run(&args),
+        Command::Soak(args) => soak_command::run(&args),
     }
 }

@@ -1,0 +1,568 @@
+//! `dribble soak`: the controller process at the robot's real rates for a long time, watched
+//! from outside as a robot's camera driver and motion module would see it.
+//!
+//! This process stands in for both: it publishes YUYV frames of both cameras over iceoryx2 at
+//! 30 Hz on CLOCK_MONOTONIC (the bottom camera half a period after the top one, as on the
+//! Nao) and reads every command the controller publishes on its 100 Hz loop. Once a second
+//! it samples the controller's resident memory and open files (`/proc/PID`), and the
+//! latency of that second's commands (from the tick's start, stamped in the command on the
+//! shared clock, to its arrival here). It writes one CSV row per second and a JSON summary,
+//! and fails if the controller's memory grows after the warm-up, if more than the allowed
+//! share of ticks miss their deadline, if any command is lost (a gap in the sequence), or if
+//! the controller stops or dies.
+
+use std::fs;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail, ensure};
+use clap::Args;
+use dribble_controller::realtime::{self, RealtimeRequest};
+use dribble_controller::test_pattern::TestPattern;
+use dribble_controller::transport::SimulatorPorts;
+use dribble_controller::transport::ipc::{Domain, Iceoryx2SimulatorPorts};
+use dribble_controller::{
+    BottomFrame, Clock, LoopConfig, MonotonicClock, MotionCommand, SyncConfig, Timestamp, TopFrame,
+};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+
+#[derive(Debug, Args)]
+pub struct SoakArgs {
+    /// The learned policy the controller runs (`policy.toml`).
+    #[arg(long)]
+    pub policy: PathBuf,
+    /// How long to run, in minutes.
+    #[arg(long, default_value_t = 1.0)]
+    pub minutes: f64,
+    /// Where the CSV (one row a second), the summary and the controller's log go.
+    #[arg(long, default_value = "soak")]
+    pub out: PathBuf,
+    /// Seconds at the start whose memory growth is allowed (loading, first touches of the
+    /// shared-memory pools); growth after that fails the soak.
+    #[arg(long, default_value_t = 10.0)]
+    pub warm_up_s: f64,
+    /// Memory growth after the warm-up that fails the soak, KiB.
+    #[arg(long, default_value_t = 256)]
+    pub max_rss_growth_kib: u64,
+    /// Share of ticks that may miss their deadline (a command arriving more than the 2 ms
+    /// tick budget after its tick began, or a tick beginning more than half a period late).
+    #[arg(long, default_value_t = 0.001)]
+    pub max_missed_share: f64,
+    /// The controller's SCHED_FIFO priority (passed as --fifo-priority); this process runs
+    /// one below it, as a camera driver would. 0: neither asks for one.
+    #[arg(long, default_value_t = 40)]
+    pub priority: u8,
+    /// The controller binary. Default: `dribble-controller` beside this program.
+    #[arg(long)]
+    pub controller: Option<PathBuf>,
+    /// The iceoryx2 domain. Default: one of its own, `soak-PID`.
+    #[arg(long)]
+    pub domain: Option<String>,
+}
+
+/// One second of the soak, as written to the CSV.
+#[derive(Clone, Copy, Debug, Default)]
+struct Second {
+    elapsed_s: f64,
+    rss_kib: u64,
+    open_files: u64,
+    commands: u64,
+    new_commands: u64,
+    stops: u64,
+    lost: u64,
+    over_budget: u64,
+    late_ticks: u64,
+    /// Commands over budget or begun late (a command may be both; counted once).
+    missed: u64,
+    latency_p50_us: f64,
+    latency_p99_us: f64,
+    latency_max_us: f64,
+}
+
+impl Second {
+    const HEADER: &str = "elapsed_s,rss_kib,open_files,commands,new_commands,stops,lost,\
+                          over_budget,late_ticks,missed,latency_p50_us,latency_p99_us,latency_max_us";
+
+    fn csv(&self) -> String {
+        format!(
+            "{:.3},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1}",
+            self.elapsed_s,
+            self.rss_kib,
+            self.open_files,
+            self.commands,
+            self.new_commands,
+            self.stops,
+            self.lost,
+            self.over_budget,
+            self.late_ticks,
+            self.missed,
+            self.latency_p50_us,
+            self.latency_p99_us,
+            self.latency_max_us
+        )
+    }
+}
+
+/// The commands' sequence, timing and kinds, over a second and over the whole run.
+#[derive(Debug)]
+struct CommandWatch {
+    budget: Duration,
+    late_after: Duration,
+    last: Option<MotionCommand>,
+    second: Second,
+    /// This second's latencies, µs.
+    latencies: Vec<f64>,
+    /// Every latency of the run, µs (an hour at 100 Hz is 360,000 values).
+    all_latencies: Vec<f64>,
+    totals: Second,
+}
+
+impl CommandWatch {
+    fn new(config: &LoopConfig) -> Self {
+        Self {
+            budget: config.budget,
+            late_after: config.tick_period + config.tick_period / 2,
+            last: None,
+            second: Second::default(),
+            latencies: Vec::with_capacity(200),
+            all_latencies: Vec::new(),
+            totals: Second::default(),
+        }
+    }
+
+    fn take(&mut self, command: MotionCommand, arrived: Timestamp) {
+        let second = &mut self.second;
+        second.commands += 1;
+        second.new_commands += u64::from(command.is_new());
+        second.stops += u64::from(command.is_stop());
+        let mut late = false;
+        if let Some(last) = self.last {
+            second.lost += command.sequence.saturating_sub(last.sequence + 1);
+            let interval = command.timestamp().saturating_since(last.timestamp());
+            late = interval > self.late_after;
+        }
+        let latency = arrived.saturating_since(command.timestamp());
+        let over_budget = latency > self.budget;
+        second.late_ticks += u64::from(late);
+        second.over_budget += u64::from(over_budget);
+        second.missed += u64::from(late || over_budget);
+        self.latencies.push(latency.as_secs_f64() * 1e6);
+        self.last = Some(command);
+    }
+
+    /// Closes the second: its latency quantiles, added to the totals.
+    fn close_second(&mut self, elapsed_s: f64, rss_kib: u64, open_files: u64) -> Second {
+        self.latencies.sort_by(f64::total_cmp);
+        let quantile = |q: f64| quantile(&self.latencies, q);
+        let mut second = Second {
+            elapsed_s,
+            rss_kib,
+            open_files,
+            latency_p50_us: quantile(0.5),
+            latency_p99_us: quantile(0.99),
+            latency_max_us: quantile(1.0),
+            ..self.second
+        };
+        if self.latencies.is_empty() {
+            second.latency_max_us = 0.0;
+        }
+        let totals = &mut self.totals;
+        totals.commands += second.commands;
+        totals.new_commands += second.new_commands;
+        totals.stops += second.stops;
+        totals.lost += second.lost;
+        totals.over_budget += second.over_budget;
+        totals.late_ticks += second.late_ticks;
+        totals.missed += second.missed;
+        self.all_latencies.extend_from_slice(&self.latencies);
+        self.latencies.clear();
+        self.second = Second::default();
+        second
+    }
+}
+
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Resident memory and open files of process `pid`, from /proc.
+fn sample_process(pid: u32) -> anyhow::Result<(u64, u64)> {
+    let status = fs::read_to_string(format!("/proc/{pid}/status"))
+        .with_context(|| format!("the controller (pid {pid}) is gone"))?;
+    let rss_kib = status
+        .lines()
+        .find_map(|line| line.strip_prefix("VmRSS:"))
+        .and_then(|value| value.split_whitespace().next())
+        .and_then(|kib| kib.parse().ok())
+        .context("no VmRSS in /proc/PID/status")?;
+    let open_files = fs::read_dir(format!("/proc/{pid}/fd"))
+        .context("cannot list the controller's open files")?
+        .count() as u64;
+    Ok((rss_kib, open_files))
+}
+
+/// The controller process, stopped (SIGTERM, then SIGKILL) when dropped.
+struct ControllerProcess(Child);
+
+impl Drop for ControllerProcess {
+    fn drop(&mut self) {
+        if let Ok(pid) = i32::try_from(self.0.id()) {
+            // SAFETY: kill takes a pid and a signal number only.
+            #[allow(unsafe_code)]
+            unsafe {
+                libc::kill(pid, libc::SIGTERM);
+            }
+        }
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn start_controller(args: &SoakArgs, domain: &str, log: &Path) -> anyhow::Result<Child> {
+    let binary = match &args.controller {
+        Some(path) => path.clone(),
+        None => std::env::current_exe()?.with_file_name("dribble-controller"),
+    };
+    ensure!(
+        binary.is_file(),
+        "no controller binary at {}",
+        binary.display()
+    );
+    let log_file = fs::File::create(log)
+        .with_context(|| format!("cannot write the controller log {}", log.display()))?;
+    let mut command = Command::new(&binary);
+    command
+        .args(["run", "--clock", "monotonic", "--domain", domain])
+        .arg("--policy")
+        .arg(&args.policy)
+        .stdin(Stdio::null())
+        .stdout(log_file.try_clone()?)
+        .stderr(log_file);
+    if args.priority > 0 {
+        command.args(["--fifo-priority", &args.priority.to_string()]);
+    }
+    command
+        .spawn()
+        .with_context(|| format!("cannot start {}", binary.display()))
+}
+
+pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
+    ensure!(
+        args.minutes.is_finite() && args.minutes > 0.0 && args.minutes <= 24.0 * 60.0,
+        "--minutes must be in (0, 1440], got {}",
+        args.minutes
+    );
+    ensure!(
+        args.warm_up_s >= 0.0 && args.warm_up_s < args.minutes * 60.0,
+        "--warm-up-s must be shorter than the run"
+    );
+    ensure!(
+        args.policy.is_file(),
+        "no policy at {}",
+        args.policy.display()
+    );
+    fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let domain_name = args
+        .domain
+        .clone()
+        .unwrap_or_else(|| format!("soak-{}", std::process::id()));
+    let domain = Domain::new(Some(&domain_name))?;
+    let mut ports = Iceoryx2SimulatorPorts::open(&domain, "soak-cameras")
+        .with_context(|| format!("cannot open iceoryx2 domain {domain_name}"))?;
+    let log = args.out.join("controller.log");
+    let mut controller = ControllerProcess(start_controller(args, &domain_name, &log)?);
+    let pid = controller.0.id();
+    let connect_deadline = Instant::now() + Duration::from_secs(30);
+    while !ports.controller_connected() {
+        if let Some(status) = controller.0.try_wait()? {
+            bail!(
+                "the controller exited ({status}) before connecting; its log: {}",
+                log.display()
+            );
+        }
+        ensure!(
+            Instant::now() < connect_deadline,
+            "the controller did not connect in 30 s; its log: {}",
+            log.display()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    println!(
+        "soak: controller pid {pid} in domain {domain_name}, policy {}, {} min; log {}",
+        args.policy.display(),
+        args.minutes,
+        log.display()
+    );
+    let report = realtime::apply(RealtimeRequest {
+        lock_memory: true,
+        fifo_priority: (args.priority > 1).then(|| args.priority - 1),
+        cpu: None,
+    });
+    println!(
+        "soak: this process (cameras and motion side): {}",
+        report.in_force_text()
+    );
+    for refusal in &report.refused {
+        println!("soak: warning: {refusal}");
+    }
+
+    let config = LoopConfig::default();
+    let camera_period = SyncConfig::default().camera_period;
+    let clock = MonotonicClock;
+    let pattern = TestPattern::default();
+    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    let mut watch = CommandWatch::new(&config);
+    let csv_path = args.out.join("soak.csv");
+    let mut csv = fs::File::create(&csv_path)
+        .with_context(|| format!("cannot write {}", csv_path.display()))?;
+    writeln!(csv, "{}", Second::HEADER)?;
+
+    let duration = Duration::from_secs_f64(args.minutes * 60.0);
+    let start = clock.now();
+    let end = start + duration;
+    let mut next_top = (0u64, start);
+    let mut next_bottom = (0u64, start + camera_period / 2);
+    let mut next_sample = start + Duration::from_secs(1);
+    let mut seconds: Vec<Second> = Vec::new();
+    let progress = ProgressBar::new(duration.as_secs());
+    progress.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} s  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let outcome: anyhow::Result<()> = loop {
+        let now = clock.now();
+        if now >= end {
+            break Ok(());
+        }
+        if now >= next_top.1 {
+            pattern.paint(&mut top, next_top.0, now);
+            if let Err(error) = ports.publish_top(&top) {
+                break Err(error).context("cannot publish a top frame");
+            }
+            next_top = (next_top.0 + 1, next_top.1 + camera_period);
+        }
+        if now >= next_bottom.1 {
+            pattern.paint(&mut bottom, next_bottom.0, now);
+            if let Err(error) = ports.publish_bottom(&bottom) {
+                break Err(error).context("cannot publish a bottom frame");
+            }
+            next_bottom = (next_bottom.0 + 1, next_bottom.1 + camera_period);
+        }
+        if now >= next_sample {
+            let elapsed_s = now.saturating_since(start).as_secs_f64();
+            let (rss_kib, open_files) = match sample_process(pid) {
+                Ok(sample) => sample,
+                Err(error) => break Err(error),
+            };
+            let second = watch.close_second(elapsed_s, rss_kib, open_files);
+            writeln!(csv, "{}", second.csv())?;
+            progress.set_position(elapsed_s as u64);
+            progress.set_message(format!(
+                "RSS {} KiB, {} files, latency p99 {:.0} µs, lost {}",
+                rss_kib, open_files, second.latency_p99_us, watch.totals.lost
+            ));
+            seconds.push(second);
+            next_sample = next_sample + Duration::from_secs(1);
+        }
+        if let Some(status) = controller.0.try_wait()? {
+            break Err(anyhow::anyhow!(
+                "the controller exited ({status}) during the soak"
+            ));
+        }
+        // Commands until the next event, in waits of at most 1 ms.
+        let next_event = next_top.1.min(next_bottom.1).min(next_sample);
+        if let Err(error) = read_commands(&mut ports, &mut watch, &clock, next_event) {
+            break Err(error).context("cannot read the controller's commands");
+        }
+    };
+    progress.finish_and_clear();
+    drop(controller);
+    outcome?;
+    summarise(args, &seconds, &mut watch)
+}
+
+/// Reads every command that arrives until `until`.
+fn read_commands(
+    ports: &mut Iceoryx2SimulatorPorts,
+    watch: &mut CommandWatch,
+    clock: &MonotonicClock,
+    until: Timestamp,
+) -> Result<(), dribble_controller::transport::TransportError> {
+    loop {
+        let left = until.saturating_since(clock.now());
+        if let Some(command) = ports.next_command(left.min(Duration::from_millis(1)))? {
+            watch.take(command, clock.now());
+        }
+        if clock.now() >= until {
+            return Ok(());
+        }
+    }
+}
+
+/// Prints and writes the summary; fails if a criterion is not met.
+fn summarise(args: &SoakArgs, seconds: &[Second], watch: &mut CommandWatch) -> anyhow::Result<()> {
+    let totals = watch.totals;
+    let (warm_up, settled): (Vec<&Second>, Vec<&Second>) =
+        seconds.iter().partition(|s| s.elapsed_s <= args.warm_up_s);
+    let rss_start = warm_up
+        .last()
+        .or(settled.first())
+        .map_or(0, |second| second.rss_kib);
+    let rss_end = seconds.last().map_or(0, |second| second.rss_kib);
+    let rss_max = settled.iter().map(|s| s.rss_kib).max().unwrap_or(rss_start);
+    let growth = rss_max.saturating_sub(rss_start);
+    let files = (
+        seconds.first().map_or(0, |s| s.open_files),
+        seconds.last().map_or(0, |s| s.open_files),
+    );
+    watch.all_latencies.sort_by(f64::total_cmp);
+    let latency = |q: f64| quantile(&watch.all_latencies, q);
+    let missed = totals.missed;
+    let missed_share = missed as f64 / totals.commands.max(1) as f64;
+    println!(
+        "soak: {:.1} min, {} commands ({} computed, {} stops), {} lost",
+        seconds.last().map_or(0.0, |s| s.elapsed_s) / 60.0,
+        totals.commands,
+        totals.new_commands,
+        totals.stops,
+        totals.lost
+    );
+    println!(
+        "soak: latency from tick start to arrival p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs; \
+         missed deadlines {missed} ({:.4} %: {} over the {:?} budget, {} ticks begun late)",
+        latency(0.5),
+        latency(0.99),
+        latency(1.0),
+        100.0 * missed_share,
+        totals.over_budget,
+        watch.budget,
+        totals.late_ticks
+    );
+    println!(
+        "soak: controller RSS {rss_start} KiB after the {:.0} s warm-up, {rss_end} KiB at the \
+         end (max {rss_max}, growth {growth} KiB); open files {} -> {}",
+        args.warm_up_s, files.0, files.1
+    );
+    let summary = json!({
+        "policy": args.policy,
+        "minutes": args.minutes,
+        "commands": totals.commands,
+        "computed": totals.new_commands,
+        "stops": totals.stops,
+        "lost": totals.lost,
+        "missed": missed,
+        "missed_share": missed_share,
+        "over_budget": totals.over_budget,
+        "late_ticks": totals.late_ticks,
+        "latency_us": {"p50": latency(0.5), "p99": latency(0.99), "max": latency(1.0)},
+        "rss_kib": {"after_warm_up": rss_start, "end": rss_end, "max": rss_max, "growth": growth},
+        "open_files": {"start": files.0, "end": files.1},
+        "limits": {
+            "max_rss_growth_kib": args.max_rss_growth_kib,
+            "max_missed_share": args.max_missed_share,
+        },
+    });
+    let summary_path = args.out.join("soak.json");
+    fs::write(&summary_path, format!("{summary:#}\n"))
+        .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    println!(
+        "soak: wrote {} and {}",
+        args.out.join("soak.csv").display(),
+        summary_path.display()
+    );
+    let mut failures = Vec::new();
+    if totals.commands == 0 {
+        failures.push("no command arrived".to_owned());
+    }
+    if totals.lost > 0 {
+        failures.push(format!("{} commands lost", totals.lost));
+    }
+    if missed_share > args.max_missed_share {
+        failures.push(format!(
+            "{:.4} % of ticks missed their deadline (allowed {:.4} %)",
+            100.0 * missed_share,
+            100.0 * args.max_missed_share
+        ));
+    }
+    if growth > args.max_rss_growth_kib {
+        failures.push(format!(
+            "the controller's memory grew {growth} KiB after the warm-up (allowed {} KiB)",
+            args.max_rss_growth_kib
+        ));
+    }
+    if files.1 > files.0 {
+        failures.push(format!("open files grew from {} to {}", files.0, files.1));
+    }
+    if !failures.is_empty() {
+        bail!("soak failed: {}", failures.join("; "));
+    }
+    println!("soak: passed");
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dribble_controller::{CommandFlags, SpeedCommand};
+
+    fn command(sequence: u64, tick_ms: u64) -> MotionCommand {
+        MotionCommand {
+            sequence,
+            timestamp_ns: tick_ms * 1_000_000,
+            top_sequence: 0,
+            bottom_sequence: 0,
+            speed: SpeedCommand::STOP,
+            flags: CommandFlags::NEW,
+        }
+    }
+
+    fn at_us(us: u64) -> Timestamp {
+        Timestamp::from_nanos(us * 1000)
+    }
+
+    #[test]
+    fn gaps_late_ticks_and_slow_commands_are_counted_once_each() {
+        let mut watch = CommandWatch::new(&LoopConfig::default());
+        watch.take(command(1, 10), at_us(10_100)); // 100 µs
+        watch.take(command(2, 20), at_us(20_200));
+        watch.take(command(5, 30), at_us(30_300)); // 3 and 4 lost
+        watch.take(command(6, 50), at_us(50_100)); // begun 20 ms after the last: late
+        watch.take(command(7, 60), at_us(63_000)); // 3 ms after its start: over budget
+        watch.take(command(8, 80), at_us(83_000)); // both: missed once
+        let second = watch.close_second(1.0, 100, 5);
+        assert_eq!(second.commands, 6);
+        assert_eq!(second.lost, 2);
+        assert_eq!(second.late_ticks, 2);
+        assert_eq!(second.over_budget, 2);
+        assert_eq!(second.missed, 3);
+        assert_eq!(second.latency_max_us, 3000.0);
+        assert_eq!(second.latency_p50_us, 300.0); // of 100, 100, 200, 300, 3000, 3000 µs
+        assert_eq!(watch.totals.lost, 2);
+        // The next second starts from zero, the totals go on.
+        watch.take(command(9, 90), at_us(90_050));
+        let next = watch.close_second(2.0, 100, 5);
+        assert_eq!((next.commands, next.lost, next.missed), (1, 0, 0));
+        assert_eq!(watch.totals.commands, 7);
+        assert_eq!(watch.all_latencies.len(), 7);
+    }
+
+    #[test]
+    fn a_csv_row_has_a_value_for_every_column() {
+        let columns = Second::HEADER.split(',').count();
+        assert_eq!(Second::default().csv().split(',').count(), columns);
+    }
+}
