@@ -105,6 +105,10 @@ use_std_from_source() {
 # Extra cargo flags (build-std when the i686 library is built from source).
 CARGO_STD_FLAGS=()
 
+# Robot binaries (and the tests that run them) link the C library statically, so they start
+# on any robot image whatever its glibc (cross/README.md, "glibc on the robot").
+STATIC="-C target-feature=+crt-static"
+
 # Sets TARGET and the cargo environment for the variant.
 configure_target() {
     export CARGO_BUILD_RUSTC=/usr/bin/rustc CARGO_BUILD_RUSTDOC=/usr/bin/rustdoc
@@ -118,11 +122,11 @@ configure_target() {
             mkdir -p "$cache"
             if [ "$(cat "$route_file" 2>/dev/null)" != source ] && ensure_i686_sysroot; then
                 echo debian-i386 >"$route_file"
-                export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_RUSTFLAGS="--sysroot $sysroot -C target-cpu=atom"
+                export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_RUSTFLAGS="--sysroot $sysroot -C target-cpu=atom $STATIC"
             else
                 echo source >"$route_file"
                 use_std_from_source
-                export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_RUSTFLAGS="-C target-cpu=atom"
+                export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_RUSTFLAGS="-C target-cpu=atom $STATIC"
             fi
             RUNNER="qemu-i386 -cpu n270 -L /usr/i686-linux-gnu"
             STRIP=i686-linux-gnu-strip
@@ -130,7 +134,7 @@ configure_target() {
             ;;
         v6)
             TARGET=x86_64-unknown-linux-gnu
-            export CARGO_TARGET_X86_64_UNKNOWN_LINUX_GNU_RUSTFLAGS="-C target-cpu=silvermont"
+            export CARGO_TARGET_X86_64_UNKNOWN_LINUX_GNU_RUSTFLAGS="-C target-cpu=silvermont $STATIC"
             # Silvermont: SSE4.2, POPCNT, MOVBE, AES, RDRAND, and no AVX at all.
             RUNNER="qemu-x86_64 -cpu Westmere,+movbe,+rdrand"
             STRIP=strip
@@ -152,9 +156,14 @@ check_no_simulator_code() {
     echo "cross: dependency tree checked: $(sort -u <<<"$tree" | wc -l) crates, none from the simulator"
 }
 
-# The newest glibc symbol version the binary needs.
+# The C library the binary needs: none when statically linked, else the newest glibc symbol
+# version it uses.
 glibc_requirement() {
-    objdump -T "$1" | grep -o 'GLIBC_[0-9.]*' | sort -Vu | tail -n 1
+    if ! readelf -d "$1" | grep -q '(NEEDED)'; then
+        echo "no C library (statically linked)"
+    else
+        objdump -T "$1" | grep -o 'GLIBC_[0-9.]*' | sort -Vu | tail -n 1
+    fi
 }
 
 ensure_packages

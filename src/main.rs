@@ -9,6 +9,7 @@ mod record_command;
 mod render_command;
 mod score_command;
 mod soak_command;
+mod soak_faults;
 mod thumbnail_command;
 mod trajectory_plot;
 

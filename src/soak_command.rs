@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail, ensure};
 use clap::Args;
+use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::realtime::{self, RealtimeRequest};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::transport::SimulatorPorts;
@@ -27,6 +28,8 @@ use dribble_controller::{
     BottomFrame, Clock, LoopConfig, MonotonicClock, MotionCommand, SyncConfig, Timestamp, TopFrame,
 };
 use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::soak_faults::{Action, FaultPlan, FaultReport};
 use serde_json::json;
 
 #[derive(Debug, Args)]
@@ -61,6 +64,11 @@ pub struct SoakArgs {
     /// The iceoryx2 domain. Default: one of its own, `soak-PID`.
     #[arg(long)]
     pub domain: Option<String>,
+    /// Inject four faults after the warm-up and check the controller's answer to each: a
+    /// 1 s camera pause, a publisher restart, a second controller in the domain, the policy
+    /// file replaced on disk (the controller runs a copy of the policy in --out).
+    #[arg(long)]
+    pub faults: bool,
 }
 
 /// One second of the soak, as written to the CSV.
@@ -231,11 +239,39 @@ impl Drop for ControllerProcess {
     }
 }
 
-fn start_controller(args: &SoakArgs, domain: &str, log: &Path) -> anyhow::Result<Child> {
-    let binary = match &args.controller {
+fn controller_binary(args: &SoakArgs) -> anyhow::Result<PathBuf> {
+    Ok(match &args.controller {
         Some(path) => path.clone(),
         None => std::env::current_exe()?.with_file_name("dribble-controller"),
-    };
+    })
+}
+
+/// Copies the policy's directory to `to`; returns the copy's manifest and first network.
+fn copy_policy(manifest: &Path, to: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
+    let from = manifest.parent().context("the policy has no directory")?;
+    fs::create_dir_all(to)?;
+    for entry in fs::read_dir(from)? {
+        let path = entry?.path();
+        if path.is_file() {
+            fs::copy(&path, to.join(path.file_name().context("a file name")?))?;
+        }
+    }
+    let copy = to.join(manifest.file_name().context("a manifest name")?);
+    let parsed = PolicyManifest::load(&copy)?;
+    let network = parsed
+        .network_paths()
+        .next()
+        .context("the policy names no network")?;
+    Ok((copy, network))
+}
+
+fn start_controller(
+    args: &SoakArgs,
+    policy: &Path,
+    domain: &str,
+    log: &Path,
+) -> anyhow::Result<Child> {
+    let binary = controller_binary(args)?;
     ensure!(
         binary.is_file(),
         "no controller binary at {}",
@@ -247,7 +283,7 @@ fn start_controller(args: &SoakArgs, domain: &str, log: &Path) -> anyhow::Result
     command
         .args(["run", "--clock", "monotonic", "--domain", domain])
         .arg("--policy")
-        .arg(&args.policy)
+        .arg(policy)
         .stdin(Stdio::null())
         .stdout(log_file.try_clone()?)
         .stderr(log_file);
@@ -281,10 +317,16 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| format!("soak-{}", std::process::id()));
     let domain = Domain::new(Some(&domain_name))?;
-    let mut ports = Iceoryx2SimulatorPorts::open(&domain, "soak-cameras")
+    let ports = Iceoryx2SimulatorPorts::open(&domain, "soak-cameras")
         .with_context(|| format!("cannot open iceoryx2 domain {domain_name}"))?;
+    // With faults, the controller runs a copy of the policy, which the last fault replaces.
+    let (policy, network) = if args.faults {
+        copy_policy(&args.policy, &args.out.join("policy"))?
+    } else {
+        (args.policy.clone(), PathBuf::new())
+    };
     let log = args.out.join("controller.log");
-    let mut controller = ControllerProcess(start_controller(args, &domain_name, &log)?);
+    let mut controller = ControllerProcess(start_controller(args, &policy, &domain_name, &log)?);
     let pid = controller.0.id();
     let connect_deadline = Instant::now() + Duration::from_secs(30);
     while !ports.controller_connected() {
@@ -334,6 +376,19 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     let duration = Duration::from_secs_f64(args.minutes * 60.0);
     let start = clock.now();
     let end = start + duration;
+    let mut plan = if args.faults {
+        Some(FaultPlan::new(
+            start + Duration::from_secs_f64(args.warm_up_s),
+            end,
+            &controller_binary(args)?,
+            &domain_name,
+            &policy,
+            &network,
+        ))
+    } else {
+        None
+    };
+    let mut ports = Some(ports);
     let mut next_top = (0u64, start);
     let mut next_bottom = (0u64, start + camera_period / 2);
     let mut next_sample = start + Duration::from_secs(1);
@@ -348,17 +403,40 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         if now >= end {
             break Ok(());
         }
+        let mut publish = true;
+        if let Some(plan) = plan.as_mut() {
+            match plan.poll(now) {
+                Ok(Action::None) => {}
+                Ok(Action::ClosePublisher) => ports = None,
+                Ok(Action::ReopenPublisher) => {
+                    match Iceoryx2SimulatorPorts::open(&domain, "soak-cameras") {
+                        Ok(reopened) => ports = Some(reopened),
+                        Err(error) => break Err(error).context("cannot reopen the cameras"),
+                    }
+                    // A new publisher numbers its frames from 0, and its command subscriber
+                    // starts with the newest command.
+                    (next_top.0, next_bottom.0) = (0, 0);
+                    watch.last = None;
+                }
+                Err(error) => break Err(error).context("a fault could not be injected"),
+            }
+            publish = plan.cameras_publish(now);
+        }
         if now >= next_top.1 {
-            pattern.paint(&mut top, next_top.0, now);
-            if let Err(error) = ports.publish_top(&top) {
-                break Err(error).context("cannot publish a top frame");
+            if let Some(ports) = ports.as_mut().filter(|_| publish) {
+                pattern.paint(&mut top, next_top.0, now);
+                if let Err(error) = ports.publish_top(&top) {
+                    break Err(error).context("cannot publish a top frame");
+                }
             }
             next_top = (next_top.0 + 1, next_top.1 + camera_period);
         }
         if now >= next_bottom.1 {
-            pattern.paint(&mut bottom, next_bottom.0, now);
-            if let Err(error) = ports.publish_bottom(&bottom) {
-                break Err(error).context("cannot publish a bottom frame");
+            if let Some(ports) = ports.as_mut().filter(|_| publish) {
+                pattern.paint(&mut bottom, next_bottom.0, now);
+                if let Err(error) = ports.publish_bottom(&bottom) {
+                    break Err(error).context("cannot publish a bottom frame");
+                }
             }
             next_bottom = (next_bottom.0 + 1, next_bottom.1 + camera_period);
         }
@@ -385,27 +463,40 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         }
         // Commands until the next event, in waits of at most 1 ms.
         let next_event = next_top.1.min(next_bottom.1).min(next_sample);
-        if let Err(error) = read_commands(&mut ports, &mut watch, &clock, next_event) {
+        let Some(open) = ports.as_mut() else {
+            std::thread::sleep(Duration::from_millis(1));
+            continue;
+        };
+        if let Err(error) = read_commands(open, &mut watch, plan.as_mut(), &clock, next_event) {
             break Err(error).context("cannot read the controller's commands");
         }
     };
     progress.finish_and_clear();
     drop(controller);
     outcome?;
-    summarise(args, &seconds, &mut watch)
+    let faults = plan.map(|mut plan| {
+        let text = fs::read_to_string(&log).unwrap_or_default();
+        plan.reports(&text)
+    });
+    summarise(args, &seconds, &mut watch, faults.as_deref())
 }
 
 /// Reads every command that arrives until `until`.
 fn read_commands(
     ports: &mut Iceoryx2SimulatorPorts,
     watch: &mut CommandWatch,
+    mut plan: Option<&mut FaultPlan>,
     clock: &MonotonicClock,
     until: Timestamp,
 ) -> Result<(), dribble_controller::transport::TransportError> {
     loop {
         let left = until.saturating_since(clock.now());
         if let Some(command) = ports.next_command(left.min(Duration::from_millis(1)))? {
-            watch.take(command, clock.now());
+            let now = clock.now();
+            watch.take(command, now);
+            if let Some(plan) = plan.as_deref_mut() {
+                plan.on_command(&command, now);
+            }
         }
         if clock.now() >= until {
             return Ok(());
@@ -414,7 +505,12 @@ fn read_commands(
 }
 
 /// Prints and writes the summary; fails if a criterion is not met.
-fn summarise(args: &SoakArgs, seconds: &[Second], watch: &mut CommandWatch) -> anyhow::Result<()> {
+fn summarise(
+    args: &SoakArgs,
+    seconds: &[Second],
+    watch: &mut CommandWatch,
+    faults: Option<&[FaultReport]>,
+) -> anyhow::Result<()> {
     let totals = watch.totals;
     let (warm_up, settled): (Vec<&Second>, Vec<&Second>) =
         seconds.iter().partition(|s| s.elapsed_s <= args.warm_up_s);
@@ -457,7 +553,25 @@ fn summarise(args: &SoakArgs, seconds: &[Second], watch: &mut CommandWatch) -> a
          end (max {rss_max}, growth {growth} KiB); open files {} -> {}",
         args.warm_up_s, files.0, files.1
     );
+    for report in faults.unwrap_or_default() {
+        println!(
+            "soak: fault {}: {} ({})",
+            report.kind.name(),
+            if report.passed {
+                "as documented"
+            } else {
+                "NOT as documented"
+            },
+            report.detail
+        );
+    }
+    let fault_json: Vec<_> = faults
+        .unwrap_or_default()
+        .iter()
+        .map(|r| json!({"fault": r.kind.name(), "passed": r.passed, "detail": r.detail}))
+        .collect();
     let summary = json!({
+        "faults": fault_json,
         "policy": args.policy,
         "minutes": args.minutes,
         "commands": totals.commands,
@@ -506,6 +620,9 @@ fn summarise(args: &SoakArgs, seconds: &[Second], watch: &mut CommandWatch) -> a
     }
     if files.1 > files.0 {
         failures.push(format!("open files grew from {} to {}", files.0, files.1));
+    }
+    for report in faults.unwrap_or_default().iter().filter(|r| !r.passed) {
+        failures.push(format!("fault {}: {}", report.kind.name(), report.detail));
     }
     if !failures.is_empty() {
         bail!("soak failed: {}", failures.join("; "));

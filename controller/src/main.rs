@@ -7,6 +7,8 @@ use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use dribble_controller::event_log::{Chain, Level, log};
 use dribble_controller::policy::engine::Isa;
+use dribble_controller::policy::file_watch::PolicyFileWatch;
+use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
 use dribble_controller::policy::{Engine, EngineOptions};
 use dribble_controller::realtime::{self, RealtimeRequest};
@@ -188,13 +190,9 @@ fn main() -> anyhow::Result<()> {
                 Some(name) => Domain::new(Some(&name))?,
                 None => Domain::from_env()?,
             };
-            let result = run(
-                config,
-                load_policy(policy.as_deref(), options)?,
-                clock,
-                &domain,
-                realtime,
-            );
+            let loaded = load_policy(policy.as_deref(), options)?;
+            let files = policy.as_deref().map(policy_files).unwrap_or_default();
+            let result = run(config, loaded, files, clock, &domain, realtime);
             if let Err(error) = &result {
                 log(Level::Error, "failed", &[("error", &Chain(error.as_ref()))]);
             }
@@ -233,9 +231,19 @@ fn load_policy(manifest: Option<&Path>, options: EngineOptions) -> anyhow::Resul
     Ok(Box::new(policy))
 }
 
+/// The files a loaded policy came from: its manifest and its network files.
+fn policy_files(manifest: &Path) -> Vec<PathBuf> {
+    let mut files = vec![manifest.to_owned()];
+    if let Ok(parsed) = PolicyManifest::load(manifest) {
+        files.extend(parsed.network_paths());
+    }
+    files
+}
+
 fn run(
     config: LoopConfig,
     policy: Box<dyn Policy>,
+    policy_files: Vec<PathBuf>,
     clock: ClockArg,
     domain: &Domain,
     realtime: RealtimeArgs,
@@ -269,12 +277,45 @@ fn run(
             &[("action", &"publishing stops until ticks return")],
         ),
         NodeEvent::SimulatorBack => log(Level::Info, "simulator_back", &[]),
+        NodeEvent::CamerasSilent => log(
+            Level::Warn,
+            "cameras_silent",
+            &[("action", &"publishing stops until both cameras deliver")],
+        ),
+        NodeEvent::CamerasBack => log(Level::Info, "cameras_back", &[]),
+        // Logged with the file's path where the files are watched (the fixed-rate loop).
+        NodeEvent::PolicyFileChanged { .. } => {}
+        NodeEvent::CameraResynced => log(
+            Level::Info,
+            "camera_resynced",
+            &[(
+                "action",
+                &"frames accepted again after a silence, whatever their sequence numbers",
+            )],
+        ),
     };
     match clock {
         ClockArg::Monotonic => {
             let mut node =
                 ControllerNode::new(ControlLoop::new(config, policy, MonotonicClock), ports);
-            let result = node.run_fixed_rate(stop);
+            let mut watches: Vec<PolicyFileWatch> = policy_files
+                .iter()
+                .filter_map(|path| PolicyFileWatch::new(path))
+                .collect();
+            let result = node.run_fixed_rate(stop, &mut watches, |event| match event {
+                NodeEvent::PolicyFileChanged { file } => log(
+                    Level::Warn,
+                    "policy_file_changed",
+                    &[
+                        ("path", &watches_path(&policy_files, file)),
+                        (
+                            "action",
+                            &"the loaded policy runs on; restart the controller to load the new one",
+                        ),
+                    ],
+                ),
+                other => on_event(other),
+            });
             finish(node.control(), node.counters(), result)
         }
         ClockArg::Simulation => {
@@ -284,6 +325,12 @@ fn run(
             finish(node.control(), node.counters(), result)
         }
     }
+}
+
+fn watches_path(files: &[PathBuf], index: usize) -> String {
+    files
+        .get(index)
+        .map_or_else(String::new, |path| path.display().to_string())
 }
 
 fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(

@@ -268,7 +268,7 @@ fn the_fixed_rate_loop_serves_a_live_camera() {
             MonotonicClock,
         );
         let mut node = ControllerNode::new(control, controller_ports);
-        node.run_fixed_rate(&thread_stop)
+        node.run_fixed_rate(&thread_stop, &mut [], |_| {})
             .map(|()| *node.control().counters())
     });
     // A camera driver at 30 Hz on the shared monotonic clock; the loop ticks at 100 Hz.

@@ -524,7 +524,32 @@ impl OnnxPolicy {
 
     /// Loads the policy whose `policy.toml` is at `manifest_path`: reads and checks the
     /// manifest and every network, and prepares them for the engine `options` name.
+    ///
+    /// A panic inside a dependency while loading (tract on a hostile ONNX file) is caught
+    /// and returned as [`PolicyLoadError::Onnx`] naming the manifest: loading happens once
+    /// at start-up, where unwinding is safe, and a bad file must not take the robot down
+    /// with a backtrace instead of a reason.
     pub fn load_with(
+        manifest_path: &Path,
+        options: EngineOptions,
+    ) -> Result<(Self, PolicyManifest), PolicyLoadError> {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            Self::load_unguarded(manifest_path, options)
+        }))
+        .unwrap_or_else(|payload| {
+            let message = payload
+                .downcast_ref::<&str>()
+                .map(|text| (*text).to_owned())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "no message".to_owned());
+            Err(PolicyLoadError::Onnx {
+                path: manifest_path.to_owned(),
+                problem: format!("made the model loader panic ({message}): not a usable policy"),
+            })
+        })
+    }
+
+    fn load_unguarded(
         manifest_path: &Path,
         options: EngineOptions,
     ) -> Result<(Self, PolicyManifest), PolicyLoadError> {

@@ -226,6 +226,18 @@ impl PolicyManifest {
                 "command_scale values must be positive, found {limits:?}"
             ));
         }
+        for name in &self.networks {
+            // A model directory names only files inside itself: no absolute path, no `..`.
+            let inside = !name.is_empty()
+                && Path::new(name)
+                    .components()
+                    .all(|part| matches!(part, std::path::Component::Normal(_)));
+            if !inside {
+                return Err(format!(
+                    "network file {name:?} is not a file inside the model's directory"
+                ));
+            }
+        }
         let networks = self.networks.len();
         match self.kind {
             PolicyKind::Cnn | PolicyKind::Rcnn if networks != 1 => {
@@ -317,6 +329,26 @@ test_error = 0.16
         );
         assert_eq!(manifest.training.test_error, Some(0.16));
         assert_eq!(manifest.command_scale.walk_limits(), WalkLimits::default());
+    }
+
+    #[test]
+    fn network_files_outside_the_model_directory_are_refused() {
+        for name in [
+            "../../../../etc/passwd",
+            "/etc/passwd",
+            "",
+            "nets/../../x.onnx",
+            ".",
+        ] {
+            let text = CNN.replace("\"policy.onnx\"", &format!("{name:?}"));
+            let error = parse(&text).expect_err(name);
+            assert!(
+                error.contains("is not a file inside the model's directory"),
+                "{name}: {error}"
+            );
+        }
+        let nested = CNN.replace("\"policy.onnx\"", "\"nets/policy.onnx\"");
+        assert!(parse(&nested).is_ok(), "a subdirectory is inside");
     }
 
     #[test]

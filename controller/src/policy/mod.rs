@@ -7,6 +7,7 @@
 
 mod brightness;
 pub mod engine;
+pub mod file_watch;
 mod learned;
 pub mod manifest;
 mod onnx_network;

@@ -10,6 +10,7 @@ use crate::clock::{Clock, ManualClock, MonotonicClock};
 use crate::control_loop::{CameraInput, ControlLoop};
 use crate::motion_command::MotionCommand;
 use crate::policy::Policy;
+use crate::policy::file_watch::PolicyFileWatch;
 
 /// What happened to the node, for the log. Rare by design: nothing here is per tick.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -20,7 +21,20 @@ pub enum NodeEvent {
     SimulatorSilent,
     /// Ticks came back after a silence.
     SimulatorBack,
+    /// The cameras fell silent (or never delivered): the loop publishes stops.
+    CamerasSilent,
+    /// Both cameras deliver again: commands are computed again.
+    CamerasBack,
+    /// A camera's frames are accepted again after a silence, whatever their sequence
+    /// numbers: after a pause, or a restarted driver (or publisher) numbering afresh.
+    CameraResynced,
+    /// The policy file watched at this index was replaced or changed on disk; the loaded
+    /// policy runs on until the controller restarts.
+    PolicyFileChanged { file: usize },
 }
+
+/// Ticks between two looks at the policy files (1 s at 100 Hz).
+const POLICY_FILE_POLL_TICKS: u64 = 100;
 
 /// What the node did beyond the control loop's own counters.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -83,12 +97,47 @@ impl<P: Policy, C: Clock, T: ControllerPorts> ControllerNode<P, C, T> {
 impl<P: Policy, T: ControllerPorts> ControllerNode<P, MonotonicClock, T> {
     /// The robot's loop: a tick every period until `stop` is set. A camera that falls
     /// silent makes the control loop publish stops; it picks up again when frames return.
-    pub fn run_fixed_rate(&mut self, stop: &AtomicBool) -> Result<(), TransportError> {
+    /// `on_event` hears of silences, returns and restarts as they happen (from counters the
+    /// loop keeps anyway: nothing is built per tick).
+    /// `policy_files` are looked at once a second ([`PolicyFileWatch`]).
+    pub fn run_fixed_rate(
+        &mut self,
+        stop: &AtomicBool,
+        policy_files: &mut [PolicyFileWatch],
+        mut on_event: impl FnMut(NodeEvent),
+    ) -> Result<(), TransportError> {
+        let mut silent = false;
+        let mut restarts = self.restarts();
+        let mut ticks = 0u64;
         while !stop.load(Ordering::Acquire) {
-            self.serve_tick()?;
+            ticks += 1;
+            if ticks.is_multiple_of(POLICY_FILE_POLL_TICKS) {
+                for (file, watch) in policy_files.iter_mut().enumerate() {
+                    if watch.changed() {
+                        on_event(NodeEvent::PolicyFileChanged { file });
+                    }
+                }
+            }
+            let command = self.serve_tick()?;
+            if command.is_stop() && !silent && self.control.counters().camera_stops > 0 {
+                silent = true;
+                on_event(NodeEvent::CamerasSilent);
+            } else if silent && command.is_new() && !command.is_stop() {
+                silent = false;
+                on_event(NodeEvent::CamerasBack);
+            }
+            let now_restarts = self.restarts();
+            if now_restarts != restarts {
+                restarts = now_restarts;
+                on_event(NodeEvent::CameraResynced);
+            }
             self.control.wait_for_next_tick();
         }
         Ok(())
+    }
+
+    fn restarts(&self) -> u64 {
+        self.control.sync_counters().restarts.iter().sum()
     }
 }
 

@@ -1,0 +1,340 @@
+//! Faults `dribble soak --faults` injects while the controller runs, and what each must do
+//! (DESIGN.md, README "Two processes"):
+//!
+//! - **camera pause**: both streams stop for 1 s. The controller stops the robot within the
+//!   100 ms silence limit and logs `cameras_silent`; when frames return it computes again and
+//!   logs `cameras_back`.
+//! - **publisher restart**: the camera publisher goes away for 0.5 s and comes back as a new
+//!   process would, its sequence numbers from 0. The controller stops meanwhile, then follows
+//!   the new numbers (`camera_resynced`) and computes again.
+//! - **second controller**: another controller started in the same domain refuses to start
+//!   ("another controller runs in it"); the running one is untouched (no command lost).
+//! - **policy replaced**: the policy's network file is replaced on disk. Nothing changes
+//!   until a restart (commands go on, no stop) and the controller logs `policy_file_changed`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use dribble_controller::{MotionCommand, Timestamp};
+
+/// How long the cameras pause, and the publisher stays away.
+const PAUSE: Duration = Duration::from_secs(1);
+const RESTART_GAP: Duration = Duration::from_millis(500);
+/// How long after a fault the controller has to show its reaction.
+const SETTLE: Duration = Duration::from_secs(3);
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaultKind {
+    CameraPause,
+    PublisherRestart,
+    SecondController,
+    PolicyReplaced,
+}
+
+impl FaultKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::CameraPause => "camera pause (1 s)",
+            Self::PublisherRestart => "publisher restart",
+            Self::SecondController => "second controller in the domain",
+            Self::PolicyReplaced => "policy file replaced on disk",
+        }
+    }
+
+    /// The controller log event each fault must produce.
+    fn log_event(self) -> &'static str {
+        match self {
+            Self::CameraPause => "event=cameras_back",
+            Self::PublisherRestart => "event=camera_resynced",
+            Self::SecondController => "event=ready",
+            Self::PolicyReplaced => "event=policy_file_changed",
+        }
+    }
+}
+
+/// One fault: when it starts, and what was seen after.
+#[derive(Debug)]
+struct Fault {
+    kind: FaultKind,
+    at: Timestamp,
+    started: bool,
+    /// First stop seen after the fault began, and first computed command after it ended.
+    first_stop: Option<Duration>,
+    back: Option<Duration>,
+    reopened: bool,
+    /// Wall-clock time it began (the controller's log is stamped in wall-clock seconds).
+    wall_s: f64,
+    second: Option<Child>,
+    second_said: Option<(Option<i32>, String)>,
+}
+
+/// What the main loop must do now.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Action {
+    None,
+    /// Drop the camera ports now (the publisher "dies").
+    ClosePublisher,
+    /// Open them again, sequence numbers from 0.
+    ReopenPublisher,
+}
+
+#[derive(Debug)]
+pub struct FaultPlan {
+    faults: Vec<Fault>,
+    controller: PathBuf,
+    domain: String,
+    policy: PathBuf,
+    network: PathBuf,
+}
+
+/// The verdict on one fault, for the summary.
+#[derive(Debug)]
+pub struct FaultReport {
+    pub kind: FaultKind,
+    pub passed: bool,
+    pub detail: String,
+}
+
+impl FaultPlan {
+    /// The four faults spread over (`from`, `to`): after the warm-up, before the end.
+    pub fn new(
+        from: Timestamp,
+        to: Timestamp,
+        controller: &Path,
+        domain: &str,
+        policy: &Path,
+        network: &Path,
+    ) -> Self {
+        let span = to.saturating_since(from);
+        let kinds = [
+            FaultKind::CameraPause,
+            FaultKind::PublisherRestart,
+            FaultKind::SecondController,
+            FaultKind::PolicyReplaced,
+        ];
+        let faults = kinds
+            .into_iter()
+            .enumerate()
+            .map(|(i, kind)| Fault {
+                kind,
+                at: from + span * (i as u32 + 1) / 5,
+                started: false,
+                first_stop: None,
+                back: None,
+                reopened: false,
+                wall_s: f64::INFINITY,
+                second: None,
+                second_said: None,
+            })
+            .collect();
+        Self {
+            faults,
+            controller: controller.to_owned(),
+            domain: domain.to_owned(),
+            policy: policy.to_owned(),
+            network: network.to_owned(),
+        }
+    }
+
+    /// Whether the cameras publish at `now` (not during a pause or a publisher's absence).
+    pub fn cameras_publish(&self, now: Timestamp) -> bool {
+        self.faults.iter().all(|fault| {
+            let window = match fault.kind {
+                FaultKind::CameraPause => PAUSE,
+                FaultKind::PublisherRestart => RESTART_GAP,
+                _ => return true,
+            };
+            now < fault.at || now >= fault.at + window
+        })
+    }
+
+    /// Starts what is due; returns what the publisher must do.
+    pub fn poll(&mut self, now: Timestamp) -> anyhow::Result<Action> {
+        let mut action = Action::None;
+        for fault in &mut self.faults {
+            if !fault.started && now >= fault.at {
+                fault.started = true;
+                fault.wall_s = wall_clock_s();
+                match fault.kind {
+                    FaultKind::CameraPause => {}
+                    FaultKind::PublisherRestart => action = Action::ClosePublisher,
+                    FaultKind::SecondController => {
+                        fault.second = Some(
+                            Command::new(&self.controller)
+                                .args(["run", "--clock", "monotonic", "--no-lock-memory"])
+                                .args(["--domain", &self.domain])
+                                .arg("--policy")
+                                .arg(&self.policy)
+                                .stdin(Stdio::null())
+                                .stdout(Stdio::piped())
+                                .stderr(Stdio::piped())
+                                .spawn()?,
+                        );
+                    }
+                    FaultKind::PolicyReplaced => {
+                        // As a copy tool replaces a file: a new one renamed over the old.
+                        let mut bytes = std::fs::read(&self.network)?;
+                        bytes.extend_from_slice(b"replaced");
+                        let staged = self.network.with_extension("onnx.new");
+                        std::fs::write(&staged, bytes)?;
+                        std::fs::rename(&staged, &self.network)?;
+                    }
+                }
+            }
+            if fault.kind == FaultKind::PublisherRestart
+                && fault.started
+                && fault.back.is_none()
+                && now >= fault.at + RESTART_GAP
+                && action == Action::None
+                && !fault.reopened
+            {
+                action = Action::ReopenPublisher;
+                fault.reopened = true;
+            }
+            if let Some(child) = &mut fault.second
+                && let Some(status) = child.try_wait()?
+            {
+                let output = fault
+                    .second
+                    .take()
+                    .map(Child::wait_with_output)
+                    .transpose()?;
+                let stderr = output
+                    .map(|o| String::from_utf8_lossy(&o.stderr).into_owned())
+                    .unwrap_or_default();
+                fault.second_said = Some((status.code(), stderr));
+            }
+        }
+        Ok(action)
+    }
+
+    /// Sees every command: times the stop and the return that each fault must cause.
+    pub fn on_command(&mut self, command: &MotionCommand, now: Timestamp) {
+        for fault in &mut self.faults {
+            if !fault.started {
+                continue;
+            }
+            let since = now.saturating_since(fault.at);
+            if since > SETTLE + PAUSE {
+                continue;
+            }
+            if command.is_stop() && fault.first_stop.is_none() {
+                fault.first_stop = Some(since);
+            }
+            let ended = match fault.kind {
+                FaultKind::CameraPause => PAUSE,
+                FaultKind::PublisherRestart => RESTART_GAP,
+                _ => Duration::ZERO,
+            };
+            if command.is_new() && !command.is_stop() && since > ended && fault.back.is_none() {
+                fault.back = Some(since);
+            }
+        }
+    }
+
+    /// The verdict on each fault, from what was seen and the controller's log.
+    pub fn reports(&mut self, controller_log: &str) -> Vec<FaultReport> {
+        let mut reports = Vec::new();
+        for fault in &mut self.faults {
+            let logged = logged_after(controller_log, fault.kind.log_event(), fault.wall_s);
+            let ms = |d: Option<Duration>| {
+                d.map_or("never".to_owned(), |d| format!("{} ms", d.as_millis()))
+            };
+            let (passed, detail) = match fault.kind {
+                FaultKind::CameraPause => {
+                    let stopped = fault
+                        .first_stop
+                        .is_some_and(|d| d <= Duration::from_millis(150));
+                    let silent = logged_after(controller_log, "event=cameras_silent", fault.wall_s);
+                    (
+                        stopped && fault.back.is_some() && logged && silent,
+                        format!(
+                            "stopped after {}, computing again {} after the pause began; logged cameras_silent: {silent}, cameras_back: {logged}",
+                            ms(fault.first_stop),
+                            ms(fault.back)
+                        ),
+                    )
+                }
+                FaultKind::PublisherRestart => (
+                    fault.back.is_some() && logged,
+                    format!(
+                        "stopped after {}, computing again {} after the publisher went away; logged camera_resynced: {logged}",
+                        ms(fault.first_stop),
+                        ms(fault.back)
+                    ),
+                ),
+                FaultKind::SecondController => {
+                    if let Some(child) = &mut fault.second {
+                        let _ = child.kill();
+                    }
+                    match &fault.second_said {
+                        Some((code, stderr)) => {
+                            let refused = *code == Some(1)
+                                && stderr.contains("another controller runs in it");
+                            (
+                                refused && fault.first_stop.is_none(),
+                                format!(
+                                    "exit code {code:?}, said: {}; the running controller stopped: {}",
+                                    stderr
+                                        .lines()
+                                        .find(|l| l.contains("event=failed"))
+                                        .unwrap_or("")
+                                        .trim(),
+                                    fault.first_stop.is_some()
+                                ),
+                            )
+                        }
+                        None => (false, "the second controller did not exit".to_owned()),
+                    }
+                }
+                FaultKind::PolicyReplaced => (
+                    logged && fault.first_stop.is_none() && fault.back.is_some(),
+                    format!(
+                        "commands went on (first stop after: {}); logged policy_file_changed: {logged}",
+                        ms(fault.first_stop)
+                    ),
+                ),
+            };
+            reports.push(FaultReport {
+                kind: fault.kind,
+                passed,
+                detail,
+            });
+        }
+        reports
+    }
+}
+
+fn wall_clock_s() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Whether the log has `event` on a line stamped (`ts=`) at or after `wall_s` (less the log's
+/// millisecond rounding).
+fn logged_after(log: &str, event: &str, wall_s: f64) -> bool {
+    log.lines().any(|line| {
+        line.contains(event)
+            && line
+                .strip_prefix("ts=")
+                .and_then(|rest| rest.split_whitespace().next())
+                .and_then(|ts| ts.parse::<f64>().ok())
+                .is_some_and(|ts| ts >= wall_s - 0.001)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_events_after_the_fault_count() {
+        let log = "ts=100.000 level=info event=cameras_back\nts=200.500 level=warn event=policy_file_changed path=x\n";
+        assert!(logged_after(log, "event=cameras_back", 99.0));
+        assert!(!logged_after(log, "event=cameras_back", 150.0));
+        assert!(logged_after(log, "event=policy_file_changed", 200.5004));
+        assert!(!logged_after(log, "event=camera_resynced", 0.0));
+    }
+}
