@@ -35,7 +35,7 @@ def load(directory: Path) -> tuple[dict[str, np.ndarray], dict | None]:
 
 def plot(columns: dict[str, np.ndarray], summary: dict | None, out: Path) -> None:
     minutes = columns["elapsed_s"] / 60.0
-    figure, (memory, latency) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    figure, (memory, latency) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
     title = "dribble soak: controller process at 30 Hz cameras, 100 Hz ticks"
     if summary:
         title += f" ({summary['minutes']:g} min, {summary['commands']:,} commands, {summary['lost']} lost)"
@@ -64,7 +64,7 @@ def plot(columns: dict[str, np.ndarray], summary: dict | None, out: Path) -> Non
     latency.set_yscale("log")
     latency.set_ylabel("tick start to command received (µs)")
     latency.set_xlabel("minutes")
-    latency.legend(loc="center right", fontsize=8, ncol=2)
+    latency.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=8, ncol=3)
     latency.grid(alpha=0.3, which="both")
     figure.tight_layout()
     figure.savefig(out, dpi=100)
