@@ -53,7 +53,8 @@ pub(crate) struct ConvShape {
 }
 
 /// Convolution of a zero-bordered NHWC input (`padded`: `[rows][padded_width][in]`) with
-/// weights `[ky][kx][in][OC]`, plus bias, optionally clamped at zero, into NHWC `out`.
+/// weights `[ky][kx][in][OC]`, plus bias, optionally clamped at zero, into NHWC `out`:
+/// output rows `first_row..`, as many as `out` holds.
 /// `P` neighbouring output pixels are computed together so each weight vector loaded is
 /// used `P` times; the `P x OC` accumulators stay in vector registers.
 #[inline(always)]
@@ -63,6 +64,7 @@ pub(crate) fn conv<M: MulAdd, const OC: usize, const P: usize>(
     weights: &[f32],
     bias: &[f32],
     relu: bool,
+    first_row: usize,
     out: &mut [f32],
 ) {
     let [_, ow] = shape.out;
@@ -71,7 +73,8 @@ pub(crate) fn conv<M: MulAdd, const OC: usize, const P: usize>(
     };
     let (weights, _) = weights.as_chunks::<OC>();
     let (out, _) = out.as_chunks_mut::<OC>();
-    for (oy, out_row) in out.chunks_exact_mut(ow).enumerate() {
+    for (i, out_row) in out.chunks_exact_mut(ow).enumerate() {
+        let oy = first_row + i;
         let blocks = ow / P;
         let (whole, rest) = out_row.split_at_mut(blocks * P);
         for (block, target) in whole.chunks_exact_mut(P).enumerate() {
@@ -147,17 +150,19 @@ pub(crate) fn conv_any<M: MulAdd>(
     weights: &[f32],
     bias: &[f32],
     relu: bool,
+    first_row: usize,
     out: &mut [f32],
 ) {
     let ic = shape.in_channels;
     let oc = shape.out_channels;
     let [kh, kw] = shape.kernel;
     let [sy, sx] = shape.stride;
-    let [oh, ow] = shape.out;
+    let [_, ow] = shape.out;
     let row = shape.padded_width * ic;
-    for oy in 0..oh {
+    for (i, out_row) in out.chunks_exact_mut(ow * oc).enumerate() {
+        let oy = first_row + i;
         for ox in 0..ow {
-            let target = &mut out[(oy * ow + ox) * oc..(oy * ow + ox + 1) * oc];
+            let target = &mut out_row[ox * oc..(ox + 1) * oc];
             target.copy_from_slice(&bias[..oc]);
             for ky in 0..kh {
                 let input_row = &padded[(oy * sy + ky) * row..(oy * sy + ky + 1) * row];

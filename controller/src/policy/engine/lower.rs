@@ -16,7 +16,7 @@ use std::collections::HashMap;
 use tract_onnx::pb;
 
 use super::kernels::ConvShape;
-use super::plan::{BinaryOp, BufferId, MAX_RANK, ReduceOp, Step, Strided};
+use super::plan::{BinaryOp, BufferId, ConvPool, MAX_RANK, ReduceOp, Step, Strided};
 
 /// Why a graph cannot be lowered (it then runs under tract).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -530,6 +530,7 @@ impl Lowerer<'_> {
                 bias,
                 shape,
                 relu: false,
+                pool: None,
                 out: to,
             },
         );
@@ -573,6 +574,39 @@ impl Lowerer<'_> {
             (w - kernel[1]) / strides[1] + 1,
         ];
         let to = self.buffer(out[0] * out[1] * c);
+        // A pool right after a convolution that only it reads is folded into that step
+        // (`ConvPool`), where its windows do not overlap vertically.
+        let fold = match self.producer.get(input) {
+            Some(&index) if strides[0] >= kernel[0] && self.single_reader(input) => {
+                match &self.steps[index] {
+                    Step::Conv {
+                        shape, pool: None, ..
+                    } => Some((index, kernel[0] * shape.out[1] * shape.out_channels)),
+                    _ => None,
+                }
+            }
+            _ => None,
+        };
+        if let Some((index, scratch_len)) = fold {
+            let scratch = self.buffer(scratch_len);
+            if let Step::Conv {
+                pool,
+                out: conv_out,
+                ..
+            } = &mut self.steps[index]
+            {
+                *conv_out = to;
+                *pool = Some(ConvPool {
+                    kernel: [kernel[0], kernel[1]],
+                    stride: [strides[0], strides[1]],
+                    out,
+                    scratch,
+                });
+            }
+            self.producer.insert(output.to_owned(), index);
+            self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
+            return Ok(());
+        }
         self.push(
             output,
             Step::MaxPool {

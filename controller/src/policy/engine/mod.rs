@@ -203,6 +203,43 @@ mod tests {
     use tract_onnx::prelude::Framework;
 
     #[test]
+    fn each_pool_of_the_cnn_fixture_is_folded_into_its_convolution() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");
+        let bytes = std::fs::read(&path).expect("fixture");
+        let proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut &bytes[..])
+            .expect("parses");
+        let graph = proto.graph.as_ref().expect("graph");
+        let inputs: [(&str, &[usize]); 2] =
+            [("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])];
+        let network = CompiledNetwork::lower(&path, graph, &inputs, Isa::Portable).expect("lowers");
+        let pools = graph.node.iter().filter(|n| n.op_type == "MaxPool").count();
+        let folded: Vec<_> = network
+            .steps
+            .iter()
+            .filter_map(|step| match step {
+                Step::Conv {
+                    pool: Some(pool),
+                    relu,
+                    ..
+                } => Some((pool.kernel, *relu)),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(
+            pools, 4,
+            "the fixture has a pool after each of its four convolutions"
+        );
+        assert_eq!(folded, vec![([2, 2], true); 4]);
+        assert!(
+            !network
+                .steps
+                .iter()
+                .any(|s| matches!(s, Step::MaxPool { .. }))
+        );
+    }
+
+    #[test]
     #[ignore = "profiling aid: cargo test --release -p dribble-controller profile -- --ignored --nocapture"]
     fn profile_the_cnn_fixture() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");

@@ -9,15 +9,30 @@ use super::kernels::{self, ConvShape, MulAdd};
 
 /// The two hot kernels, as an instruction set provides them.
 pub(crate) trait Kernels {
+    /// Output rows `first_row..` of a convolution, as many as `out` holds.
     fn conv(
         shape: &ConvShape,
         padded: &[f32],
         weights: &[f32],
         bias: &[f32],
         relu: bool,
+        first_row: usize,
         out: &mut [f32],
     );
     fn dense(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]);
+
+    /// Max pooling of an NHWC map (see [`kernels::max_pool_nhwc`]).
+    #[inline(always)]
+    fn max_pool(
+        input: &[f32],
+        size: [usize; 3],
+        kernel: [usize; 2],
+        stride: [usize; 2],
+        out_size: [usize; 2],
+        out: &mut [f32],
+    ) {
+        kernels::max_pool_nhwc(input, size, kernel, stride, out_size, false, out);
+    }
 }
 
 /// The generic kernels, left to the compiler to vectorise (the portable path).
@@ -32,13 +47,15 @@ impl<M: MulAdd> Kernels for Generic<M> {
         weights: &[f32],
         bias: &[f32],
         relu: bool,
+        first_row: usize,
         out: &mut [f32],
     ) {
+        let row = first_row;
         match shape.out_channels {
-            8 => kernels::conv::<M, 8, 8>(shape, padded, weights, bias, relu, out),
-            16 => kernels::conv::<M, 16, 4>(shape, padded, weights, bias, relu, out),
-            32 => kernels::conv::<M, 32, 2>(shape, padded, weights, bias, relu, out),
-            _ => kernels::conv_any::<M>(shape, padded, weights, bias, relu, out),
+            8 => kernels::conv::<M, 8, 8>(shape, padded, weights, bias, relu, row, out),
+            16 => kernels::conv::<M, 16, 4>(shape, padded, weights, bias, relu, row, out),
+            32 => kernels::conv::<M, 32, 2>(shape, padded, weights, bias, relu, row, out),
+            _ => kernels::conv_any::<M>(shape, padded, weights, bias, relu, row, out),
         }
     }
 
@@ -62,32 +79,63 @@ impl Kernels for SseKernels {
         weights: &[f32],
         bias: &[f32],
         relu: bool,
+        first_row: usize,
         out: &mut [f32],
     ) {
-        use super::simd::{Sse, conv};
+        use super::simd::{Sse, conv_rows};
+        let (ic, kw, row) = (shape.in_channels, shape.kernel[1], first_row);
         // Accumulators, weight vectors and broadcast inputs in registers: sixteen on x86-64,
         // eight on the 32-bit build. Measured with callgrind (`cross/count`): one group of all
         // 32 channels beats two groups of 16 on both, as the inputs are then read once.
+        // The first layer (one input channel) gets its inner loop unrolled.
         #[cfg(target_arch = "x86_64")]
-        let done = match shape.out_channels {
-            8 => conv::<Sse, 2, 4>(shape, padded, weights, bias, relu, out),
-            16 => conv::<Sse, 4, 2>(shape, padded, weights, bias, relu, out),
-            _ => conv::<Sse, 8, 1>(shape, padded, weights, bias, relu, out),
+        let done = match (shape.out_channels, ic, kw) {
+            (8, _, _) => conv_rows::<Sse, 2, 5, 0, 0>(shape, padded, weights, bias, relu, row, out),
+            (16, 1, 5) => {
+                conv_rows::<Sse, 4, 2, 1, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            (16, 8, 5) => {
+                conv_rows::<Sse, 4, 2, 8, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            (32, 16, 5) => {
+                conv_rows::<Sse, 8, 1, 16, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            _ => conv_rows::<Sse, 4, 2, 0, 0>(shape, padded, weights, bias, relu, row, out),
         };
         #[cfg(target_arch = "x86")]
-        let done = match shape.out_channels {
-            8 => conv::<Sse, 2, 2>(shape, padded, weights, bias, relu, out),
-            16 => conv::<Sse, 4, 1>(shape, padded, weights, bias, relu, out),
-            _ => conv::<Sse, 8, 1>(shape, padded, weights, bias, relu, out),
+        let done = match (shape.out_channels, ic, kw) {
+            (8, _, _) => conv_rows::<Sse, 2, 2, 0, 0>(shape, padded, weights, bias, relu, row, out),
+            (16, 1, 5) => {
+                conv_rows::<Sse, 4, 1, 1, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            (16, _, _) => {
+                conv_rows::<Sse, 4, 1, 0, 0>(shape, padded, weights, bias, relu, row, out)
+            }
+            _ => conv_rows::<Sse, 8, 1, 0, 0>(shape, padded, weights, bias, relu, row, out),
         };
         if !done {
-            Generic::<kernels::Separate>::conv(shape, padded, weights, bias, relu, out);
+            Generic::<kernels::Separate>::conv(shape, padded, weights, bias, relu, row, out);
         }
     }
 
     #[inline(always)]
     fn dense(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
         super::simd::dense::<super::simd::Sse>(x, weights, bias, y);
+    }
+
+    #[inline(always)]
+    fn max_pool(
+        input: &[f32],
+        size: [usize; 3],
+        kernel: [usize; 2],
+        stride: [usize; 2],
+        out_size: [usize; 2],
+        out: &mut [f32],
+    ) {
+        use super::simd::{Sse, max_pool};
+        if !max_pool::<Sse>(input, size, kernel, stride, out_size, out) {
+            kernels::max_pool_nhwc(input, size, kernel, stride, out_size, false, out);
+        }
     }
 }
 
@@ -105,16 +153,32 @@ impl Kernels for AvxKernels {
         weights: &[f32],
         bias: &[f32],
         relu: bool,
+        first_row: usize,
         out: &mut [f32],
     ) {
-        use super::simd::{Avx, conv};
-        let done = match shape.out_channels {
-            8 => conv::<Avx, 1, 8>(shape, padded, weights, bias, relu, out),
-            16 => conv::<Avx, 2, 6>(shape, padded, weights, bias, relu, out),
-            _ => conv::<Avx, 4, 2>(shape, padded, weights, bias, relu, out),
+        use super::simd::{Avx, conv_rows};
+        let (ic, kw, row) = (shape.in_channels, shape.kernel[1], first_row);
+        // Sixteen registers: twelve accumulators, two weight vectors and the broadcast input.
+        let done = match (shape.out_channels, ic, kw) {
+            (8, 1, 5) => {
+                conv_rows::<Avx, 1, 12, 1, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            (8, _, _) => {
+                conv_rows::<Avx, 1, 12, 0, 0>(shape, padded, weights, bias, relu, row, out)
+            }
+            (16, 1, 5) => {
+                conv_rows::<Avx, 2, 5, 1, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            (16, 8, 5) => {
+                conv_rows::<Avx, 2, 5, 8, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            (32, 16, 5) => {
+                conv_rows::<Avx, 2, 5, 16, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            _ => conv_rows::<Avx, 2, 5, 0, 0>(shape, padded, weights, bias, relu, row, out),
         };
         if !done {
-            Generic::<kernels::Fused>::conv(shape, padded, weights, bias, relu, out);
+            Generic::<kernels::Fused>::conv(shape, padded, weights, bias, relu, row, out);
         }
     }
 
@@ -122,9 +186,38 @@ impl Kernels for AvxKernels {
     fn dense(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
         super::simd::dense::<super::simd::Avx>(x, weights, bias, y);
     }
+
+    #[inline(always)]
+    fn max_pool(
+        input: &[f32],
+        size: [usize; 3],
+        kernel: [usize; 2],
+        stride: [usize; 2],
+        out_size: [usize; 2],
+        out: &mut [f32],
+    ) {
+        use super::simd::{Avx, max_pool};
+        if !max_pool::<Avx>(input, size, kernel, stride, out_size, out) {
+            kernels::max_pool_nhwc(input, size, kernel, stride, out_size, false, out);
+        }
+    }
 }
 
 pub(crate) type BufferId = usize;
+
+/// A max-pool folded into the convolution before it: the convolution's rows under one row
+/// of pooling windows (`kernel[0]` of them) are computed into `scratch` and pooled at once,
+/// so the full-size map is never written out. Only for windows that do not overlap
+/// vertically (`stride[0] >= kernel[0]`), so that each convolution row is computed once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ConvPool {
+    pub kernel: [usize; 2],
+    pub stride: [usize; 2],
+    /// The pooled map's height and width.
+    pub out: [usize; 2],
+    /// `kernel[0]` rows of the convolution's output.
+    pub scratch: BufferId,
+}
 
 /// The highest rank the element-wise steps index.
 pub(crate) const MAX_RANK: usize = 6;
@@ -205,12 +298,15 @@ pub(crate) enum Step {
         padded_width: usize,
         from_nchw: bool,
     },
+    /// A convolution, with its ReLU and the max-pool after it where the graph has them.
     Conv {
         padded: BufferId,
         weights: Vec<f32>,
         bias: Vec<f32>,
         shape: ConvShape,
         relu: bool,
+        /// When set, `out` holds the pooled map and the full-size one never exists.
+        pool: Option<ConvPool>,
         out: BufferId,
     },
     MaxPool {
@@ -295,7 +391,13 @@ impl Step {
             | Self::Gather { from, to, .. }
             | Self::Relu { from, to, .. }
             | Self::Reduce { from, to, .. } => (vec![*from], vec![*to]),
-            Self::Conv { padded, out, .. } => (vec![*padded], vec![*out]),
+            Self::Conv {
+                padded, pool, out, ..
+            } => {
+                let mut writes = vec![*out];
+                writes.extend(pool.map(|pool| pool.scratch));
+                (vec![*padded], writes)
+            }
             Self::Binary { a, b, to, .. } => (vec![*a, *b], vec![*to]),
             Self::Lstm {
                 x,
@@ -332,7 +434,9 @@ pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>]) {
                 let input = &buffers[*from];
                 for y in 0..*h {
                     let row = &mut out[((top + y) * padded_width + left) * c..][..w * c];
-                    if *from_nchw {
+                    if *from_nchw && *c == 1 {
+                        row.copy_from_slice(&input[y * w..(y + 1) * w]);
+                    } else if *from_nchw {
                         for (x, pixel) in row.chunks_exact_mut(*c).enumerate() {
                             for (channel, value) in pixel.iter_mut().enumerate() {
                                 *value = input[(channel * h + y) * w + x];
@@ -350,11 +454,43 @@ pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>]) {
                 bias,
                 shape,
                 relu,
+                pool,
                 out,
             } => {
                 let mut target = mem::take(&mut buffers[*out]);
-                let input = &buffers[*padded];
-                K::conv(shape, input, weights, bias, *relu, &mut target);
+                match pool {
+                    None => K::conv(
+                        shape,
+                        &buffers[*padded],
+                        weights,
+                        bias,
+                        *relu,
+                        0,
+                        &mut target,
+                    ),
+                    Some(pool) => {
+                        let mut scratch = mem::take(&mut buffers[pool.scratch]);
+                        let input = &buffers[*padded];
+                        let ([_, ow], oc) = (shape.out, shape.out_channels);
+                        let [ph, pw] = pool.out;
+                        let rows = pool.kernel[0];
+                        let scratch_rows = &mut scratch[..rows * ow * oc];
+                        let pooled_rows = target.chunks_exact_mut(pw * oc).take(ph);
+                        for (py, pooled) in pooled_rows.enumerate() {
+                            let first = py * pool.stride[0];
+                            K::conv(shape, input, weights, bias, *relu, first, scratch_rows);
+                            K::max_pool(
+                                scratch_rows,
+                                [rows, ow, oc],
+                                pool.kernel,
+                                pool.stride,
+                                [1, pw],
+                                pooled,
+                            );
+                        }
+                        buffers[pool.scratch] = scratch;
+                    }
+                }
                 buffers[*out] = target;
             }
             Step::MaxPool {
@@ -366,15 +502,7 @@ pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>]) {
                 out,
             } => {
                 let mut target = mem::take(&mut buffers[*to]);
-                kernels::max_pool_nhwc(
-                    &buffers[*from],
-                    *size,
-                    *kernel,
-                    *stride,
-                    *out,
-                    false,
-                    &mut target,
-                );
+                K::max_pool(&buffers[*from], *size, *kernel, *stride, *out, &mut target);
                 buffers[*to] = target;
             }
             Step::NhwcToNchw {

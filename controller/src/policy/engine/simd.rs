@@ -150,50 +150,50 @@ impl Vector for Avx {
     }
 }
 
-/// [`super::kernels::conv`] over vectors: the output channels in groups of `VECS` vectors of
-/// `V`, `P` pixels per block, so that `P x VECS` accumulators, `VECS` weight vectors and `P`
-/// broadcast inputs fit the register file. Returns false (nothing written) when the output
-/// channels are not a whole number of groups.
+/// Rows `first_row..` of [`super::kernels::conv`] (as many as `out` holds) over vectors:
+/// the output channels in groups of `VECS` vectors of `V`, `P` pixels per block, so that
+/// `P x VECS` accumulators, `VECS` weight vectors and the broadcast input fit the register
+/// file. `IC` and `KW` are the number of input channels and the kernel's width when known
+/// at compile time (the inner loops are then unrolled), 0 when not. A row whose width is not a whole number of blocks ends with
+/// a block that overlaps the one before (those pixels are computed twice, identically)
+/// rather than with single pixels. Returns false (nothing written) when the output channels
+/// are not a whole number of groups or `IC` does not match.
 #[inline(always)]
-pub(crate) fn conv<V: Vector, const VECS: usize, const P: usize>(
+pub(crate) fn conv_rows<
+    V: Vector,
+    const VECS: usize,
+    const P: usize,
+    const IC: usize,
+    const KW: usize,
+>(
     shape: &ConvShape,
     padded: &[f32],
     weights: &[f32],
     bias: &[f32],
     relu: bool,
+    first_row: usize,
     out: &mut [f32],
 ) -> bool {
     let oc = shape.out_channels;
     let group = VECS * V::LANES;
     if oc == 0
         || !oc.is_multiple_of(group)
+        || (IC != 0 && IC != shape.in_channels)
+        || (KW != 0 && KW != shape.kernel[1])
         || weights.len() < shape.kernel[0] * shape.kernel[1] * shape.in_channels * oc
     {
         return false;
     }
-    let [oh, ow] = shape.out;
-    for g in 0..oc / group {
-        let channels = g * group;
-        let bias: [V; VECS] = core::array::from_fn(|v| V::load(&bias[channels + v * V::LANES..]));
-        for oy in 0..oh {
-            let out_row = &mut out[oy * ow * oc..(oy + 1) * ow * oc];
+    let [_, ow] = shape.out;
+    for (i, out_row) in out.chunks_exact_mut(ow * oc).enumerate() {
+        let oy = first_row + i;
+        for g in 0..oc / group {
+            let channels = g * group;
+            let bias: [V; VECS] =
+                core::array::from_fn(|v| V::load(&bias[channels + v * V::LANES..]));
             let blocks = ow / P;
-            for block in 0..blocks {
-                let target = &mut out_row[block * P * oc..(block + 1) * P * oc];
-                conv_block::<V, VECS, P>(
-                    shape,
-                    padded,
-                    weights,
-                    &bias,
-                    relu,
-                    [oy, block * P],
-                    channels,
-                    target,
-                );
-            }
-            for ox in blocks * P..ow {
-                let target = &mut out_row[ox * oc..(ox + 1) * oc];
-                conv_block::<V, VECS, 1>(
+            let block_at = |ox: usize, target: &mut [f32]| {
+                conv_block::<V, VECS, P, IC, KW>(
                     shape,
                     padded,
                     weights,
@@ -202,6 +202,28 @@ pub(crate) fn conv<V: Vector, const VECS: usize, const P: usize>(
                     [oy, ox],
                     channels,
                     target,
+                );
+            };
+            for block in 0..blocks {
+                block_at(
+                    block * P,
+                    &mut out_row[block * P * oc..(block + 1) * P * oc],
+                );
+            }
+            if ow % P != 0 && blocks > 0 {
+                block_at(ow - P, &mut out_row[(ow - P) * oc..]);
+            }
+            // A row narrower than one block: single pixels.
+            for ox in 0..if blocks == 0 { ow } else { 0 } {
+                conv_block::<V, VECS, 1, IC, KW>(
+                    shape,
+                    padded,
+                    weights,
+                    &bias,
+                    relu,
+                    [oy, ox],
+                    channels,
+                    &mut out_row[ox * oc..(ox + 1) * oc],
                 );
             }
         }
@@ -212,7 +234,7 @@ pub(crate) fn conv<V: Vector, const VECS: usize, const P: usize>(
 /// `P` output pixels from `(oy, ox)` on, output channels `channels..channels + VECS * LANES`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // one block of one convolution
-fn conv_block<V: Vector, const VECS: usize, const P: usize>(
+fn conv_block<V: Vector, const VECS: usize, const P: usize, const IC: usize, const KW: usize>(
     shape: &ConvShape,
     padded: &[f32],
     weights: &[f32],
@@ -222,35 +244,35 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize>(
     channels: usize,
     target: &mut [f32],
 ) {
-    let ic = shape.in_channels;
+    let ic = if IC == 0 { shape.in_channels } else { IC };
     let oc = shape.out_channels;
-    let [kh, kw] = shape.kernel;
+    let kh = shape.kernel[0];
+    let kw = if KW == 0 { shape.kernel[1] } else { KW };
     let [sy, sx] = shape.stride;
     let row = shape.padded_width * ic;
     let step = sx * ic;
     let mut acc = [*bias; P];
     for ky in 0..kh {
         let input_row = &padded[(oy * sy + ky) * row..(oy * sy + ky + 1) * row];
+        let taps_row = &weights[ky * kw * ic * oc..(ky + 1) * kw * ic * oc];
+        let first = ox * sx * ic;
+        let span = &input_row[first..first + (P - 1) * step + kw * ic];
+        // The slices are checked once here; the loop below reads inside them without a
+        // check per value, which on the V5 would cost more than the arithmetic.
+        let (taps, span) = (taps_row.as_ptr(), span.as_ptr());
         for kx in 0..kw {
-            let taps = &weights[(ky * kw + kx) * ic * oc..(ky * kw + kx + 1) * ic * oc];
-            let first = (ox * sx + kx) * ic;
-            let span = &input_row[first..first + (P - 1) * step + ic];
-            // The slices are checked once here; the loop below reads inside them without a
-            // check per value, which on the V5 would cost more than the arithmetic.
-            let (taps, span) = (taps.as_ptr(), span.as_ptr());
             for c in 0..ic {
-                // SAFETY: c < ic and channels + (v + 1) * LANES <= oc (`conv` checks that the
-                // groups tile the channels), so c * oc + channels + v * LANES + LANES <= ic * oc,
-                // the length of `taps`; p < P, so p * step + c < (P - 1) * step + ic, the
-                // length of `span`.
+                // SAFETY: kx < kw, c < ic and channels + (v + 1) * LANES <= oc (`conv_rows`
+                // checks that the groups tile the channels), so the weight offset plus LANES
+                // stays inside `taps_row` (kw * ic * oc values); p < P, so
+                // p * step + kx * ic + c < (P - 1) * step + kw * ic, the length of `span`.
                 let w: [V; VECS] = core::array::from_fn(|v| unsafe {
-                    V::load_unchecked(taps.add(c * oc + channels + v * V::LANES))
+                    V::load_unchecked(taps.add((kx * ic + c) * oc + channels + v * V::LANES))
                 });
-                let xs: [V; P] =
-                    core::array::from_fn(|p| V::splat(unsafe { *span.add(p * step + c) }));
-                for p in 0..P {
-                    for v in 0..VECS {
-                        acc[p][v] = V::mul_add(xs[p], w[v], acc[p][v]);
+                for (p, acc) in acc.iter_mut().enumerate() {
+                    let x = V::splat(unsafe { *span.add(p * step + kx * ic + c) });
+                    for (acc, &w) in acc.iter_mut().zip(&w) {
+                        *acc = V::mul_add(x, w, *acc);
                     }
                 }
             }
@@ -263,6 +285,41 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize>(
             value.store(&mut target[p * oc + channels + v * V::LANES..]);
         }
     }
+}
+
+/// [`super::kernels::max_pool_nhwc`] over vectors (without the clamp at zero). Returns
+/// false (nothing written) when the channels are not a whole number of vectors.
+#[inline(always)]
+pub(crate) fn max_pool<V: Vector>(
+    input: &[f32],
+    [_, w, c]: [usize; 3],
+    kernel: [usize; 2],
+    stride: [usize; 2],
+    [oh, ow]: [usize; 2],
+    out: &mut [f32],
+) -> bool {
+    if c == 0 || !c.is_multiple_of(V::LANES) {
+        return false;
+    }
+    for oy in 0..oh {
+        for ox in 0..ow {
+            let target = &mut out[(oy * ow + ox) * c..(oy * ow + ox + 1) * c];
+            for channel in (0..c).step_by(V::LANES) {
+                let mut max = V::splat(f32::NEG_INFINITY);
+                for ky in 0..kernel[0] {
+                    for kx in 0..kernel[1] {
+                        let (y, x) = (oy * stride[0] + ky, ox * stride[1] + kx);
+                        let value = V::load(&input[(y * w + x) * c + channel..]);
+                        // The running maximum second: a NaN in the map is skipped, as
+                        // `f32::max` would.
+                        max = V::max(value, max);
+                    }
+                }
+                max.store(&mut target[channel..]);
+            }
+        }
+    }
+    true
 }
 
 /// [`super::kernels::dense`] over vectors: four rows at a time.
