@@ -94,11 +94,9 @@ fn main() {
     criterion.final_summary();
     if std::env::var_os(SSE_ONLY_RUN).is_none() {
         // tract with SSE only, in a process of its own (it reads its ISA once), with the same
-        // flags (`--bench`, or test mode under `cargo test`).
-        let flags: Vec<String> = std::env::args()
-            .skip(1)
-            .filter(|a| a.starts_with("--"))
-            .collect();
+        // arguments (`--bench` or test mode under `cargo test`, options with their values,
+        // the filter).
+        let flags: Vec<String> = std::env::args().skip(1).collect();
         let status = std::env::current_exe().and_then(|exe| {
             Command::new(exe)
                 .args(&flags)

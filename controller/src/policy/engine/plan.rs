@@ -104,14 +104,18 @@ impl Kernels for SseKernels {
         };
         #[cfg(target_arch = "x86")]
         let done = match (shape.out_channels, ic, kw) {
+            (8, 1, 5) => conv_rows::<Sse, 2, 2, 1, 5>(shape, padded, weights, bias, relu, row, out),
             (8, _, _) => conv_rows::<Sse, 2, 2, 0, 0>(shape, padded, weights, bias, relu, row, out),
             (16, 1, 5) => {
                 conv_rows::<Sse, 4, 1, 1, 5>(shape, padded, weights, bias, relu, row, out)
             }
-            (16, _, _) => {
-                conv_rows::<Sse, 4, 1, 0, 0>(shape, padded, weights, bias, relu, row, out)
+            (16, 8, 5) => {
+                conv_rows::<Sse, 4, 1, 8, 5>(shape, padded, weights, bias, relu, row, out)
             }
-            _ => conv_rows::<Sse, 8, 1, 0, 0>(shape, padded, weights, bias, relu, row, out),
+            (32, 16, 5) => {
+                conv_rows::<Sse, 4, 1, 16, 5>(shape, padded, weights, bias, relu, row, out)
+            }
+            _ => conv_rows::<Sse, 4, 1, 0, 0>(shape, padded, weights, bias, relu, row, out),
         };
         if !done {
             Generic::<kernels::Separate>::conv(shape, padded, weights, bias, relu, row, out);

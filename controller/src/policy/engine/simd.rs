@@ -301,6 +301,27 @@ pub(crate) fn max_pool<V: Vector>(
     if c == 0 || !c.is_multiple_of(V::LANES) {
         return false;
     }
+    if kernel == [2, 2] && stride == [2, 2] {
+        // The networks' pool: two input rows per output row, two pixels per output pixel,
+        // walked as slices so that nothing is recomputed or checked per vector. (A NaN in
+        // the map may come through here; the controller refuses a non-finite command.)
+        let input_rows = input.chunks_exact(2 * w * c);
+        for (out_row, rows) in out.chunks_exact_mut(ow * c).zip(input_rows).take(oh) {
+            let (upper, lower) = rows.split_at(w * c);
+            let pairs = upper.chunks_exact(2 * c).zip(lower.chunks_exact(2 * c));
+            for (target, (upper, lower)) in out_row.chunks_exact_mut(c).zip(pairs) {
+                for channel in (0..c).step_by(V::LANES) {
+                    let left = V::max(V::load(&upper[channel..]), V::load(&lower[channel..]));
+                    let right = V::max(
+                        V::load(&upper[c + channel..]),
+                        V::load(&lower[c + channel..]),
+                    );
+                    V::max(left, right).store(&mut target[channel..]);
+                }
+            }
+        }
+        return true;
+    }
     for oy in 0..oh {
         for ox in 0..ow {
             let target = &mut out[(oy * ow + ox) * c..(oy * ow + ox + 1) * c];
