@@ -16,7 +16,9 @@ use std::collections::HashMap;
 use tract_onnx::pb;
 
 use super::kernels::ConvShape;
-use super::plan::{BinaryOp, BufferId, ConvPool, MAX_RANK, ReduceOp, Step, Strided};
+use super::plan::{
+    AlignedWeights, BinaryOp, BufferId, ConvPool, MAX_RANK, ReduceOp, Step, Strided,
+};
 
 /// Why a graph cannot be lowered (it then runs under tract).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -526,7 +528,7 @@ impl Lowerer<'_> {
             output,
             Step::Conv {
                 padded,
-                weights: relaid,
+                weights: AlignedWeights::new(&relaid),
                 bias,
                 shape,
                 relu: false,

@@ -203,6 +203,25 @@ mod tests {
     use tract_onnx::prelude::Framework;
 
     #[test]
+    fn aligned_weights_start_on_a_32_byte_boundary_and_keep_their_values() {
+        for len in [0, 1, 7, 8, 25 * 16, 1000] {
+            let values: Vec<f32> = (0..len).map(|i| i as f32 * 0.5 - 3.0).collect();
+            // Moved after construction, as a plan's steps are.
+            let weights = vec![plan::AlignedWeights::new(&values)].remove(0);
+            let slice = weights.as_slice();
+            assert_eq!(slice, &values[..], "length {len}");
+            assert!(
+                slice
+                    .as_ptr()
+                    .addr()
+                    .is_multiple_of(plan::AlignedWeights::ALIGN),
+                "length {len}: starts at {:p}",
+                slice.as_ptr()
+            );
+        }
+    }
+
+    #[test]
     fn each_pool_of_the_cnn_fixture_is_folded_into_its_convolution() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");
         let bytes = std::fs::read(&path).expect("fixture");

@@ -209,6 +209,52 @@ impl Kernels for AvxKernels {
 
 pub(crate) type BufferId = usize;
 
+/// Weights whose first value sits on a 32-byte boundary. The vector kernels then read them
+/// with aligned loads, which SSE folds into its `mulps` as a memory operand (an unaligned
+/// one it cannot): no register is spent holding a weight vector, which on the V5's eight
+/// registers is what made the compiler spill accumulators to the stack.
+///
+/// Safe code: the values start at the first aligned index of an over-allocated `Vec`, and a
+/// `Vec`'s heap buffer stays where it is when the `Vec` moves.
+#[derive(Clone, PartialEq)]
+pub(crate) struct AlignedWeights {
+    storage: Vec<f32>,
+    start: usize,
+    len: usize,
+}
+
+impl AlignedWeights {
+    /// The boundary, in bytes: an AVX register's width.
+    pub(crate) const ALIGN: usize = 32;
+
+    pub(crate) fn new(values: &[f32]) -> Self {
+        const SLACK: usize = AlignedWeights::ALIGN / size_of::<f32>();
+        let mut storage = vec![0.0; values.len() + SLACK];
+        // Below SLACK for a 4-byte-aligned buffer; should it ever say "cannot", the values
+        // start at 0 and the vector kernels, which check, leave the work to the generic ones.
+        let start = match storage.as_ptr().align_offset(Self::ALIGN) {
+            offset if offset < SLACK => offset,
+            _ => 0,
+        };
+        storage[start..start + values.len()].copy_from_slice(values);
+        Self {
+            storage,
+            start,
+            len: values.len(),
+        }
+    }
+
+    pub(crate) fn as_slice(&self) -> &[f32] {
+        &self.storage[self.start..self.start + self.len]
+    }
+}
+
+impl core::fmt::Debug for AlignedWeights {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        self.as_slice().fmt(f)
+    }
+}
+
 /// A max-pool folded into the convolution before it: the convolution's rows under one row
 /// of pooling windows (`kernel[0]` of them) are computed into `scratch` and pooled at once,
 /// so the full-size map is never written out. Only for windows that do not overlap
@@ -305,7 +351,7 @@ pub(crate) enum Step {
     /// A convolution, with its ReLU and the max-pool after it where the graph has them.
     Conv {
         padded: BufferId,
-        weights: Vec<f32>,
+        weights: AlignedWeights,
         bias: Vec<f32>,
         shape: ConvShape,
         relu: bool,
@@ -462,6 +508,7 @@ pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>]) {
                 out,
             } => {
                 let mut target = mem::take(&mut buffers[*out]);
+                let weights = weights.as_slice();
                 match pool {
                     None => K::conv(
                         shape,

@@ -29,6 +29,11 @@ pub(crate) trait Vector: Copy {
     /// # Safety
     /// `values` must point at `LANES` readable floats.
     unsafe fn load_unchecked(values: *const f32) -> Self;
+    /// The `LANES` values from `values`, which sit on a boundary of `LANES` floats.
+    ///
+    /// # Safety
+    /// `values` must point at `LANES` readable floats and be aligned to `LANES * 4` bytes.
+    unsafe fn load_aligned_unchecked(values: *const f32) -> Self;
     fn store(self, values: &mut [f32]);
     /// `a * b + c`: fused where the set has FMA.
     fn mul_add(a: Self, b: Self, c: Self) -> Self;
@@ -67,6 +72,12 @@ impl Vector for Sse {
     unsafe fn load_unchecked(values: *const f32) -> Self {
         // SAFETY: the caller's promise, and the baseline SSE (above).
         Self(unsafe { _mm_loadu_ps(values) })
+    }
+
+    #[inline(always)]
+    unsafe fn load_aligned_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise (alignment included), and the baseline SSE (above).
+        Self(unsafe { _mm_load_ps(values) })
     }
 
     #[inline(always)]
@@ -126,6 +137,13 @@ impl Vector for Avx {
     }
 
     #[inline(always)]
+    unsafe fn load_aligned_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise (alignment included), and the AVX this is compiled
+        // with (above).
+        Self(unsafe { _mm256_load_ps(values) })
+    }
+
+    #[inline(always)]
     fn store(self, values: &mut [f32]) {
         let values = &mut values[..8];
         unsafe { _mm256_storeu_ps(values.as_mut_ptr(), self.0) }
@@ -181,6 +199,10 @@ pub(crate) fn conv_rows<
         || (IC != 0 && IC != shape.in_channels)
         || (KW != 0 && KW != shape.kernel[1])
         || weights.len() < shape.kernel[0] * shape.kernel[1] * shape.in_channels * oc
+        || !weights
+            .as_ptr()
+            .addr()
+            .is_multiple_of(V::LANES * size_of::<f32>())
     {
         return false;
     }
@@ -264,10 +286,14 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize, const IC: usize, con
             for c in 0..ic {
                 // SAFETY: kx < kw, c < ic and channels + (v + 1) * LANES <= oc (`conv_rows`
                 // checks that the groups tile the channels), so the weight offset plus LANES
-                // stays inside `taps_row` (kw * ic * oc values); p < P, so
+                // stays inside `taps_row` (kw * ic * oc values); the offset is a multiple of
+                // LANES (oc and channels are) and `conv_rows` checked that `weights` starts on
+                // a LANES-float boundary, as `taps_row` does (ky * kw * ic * oc in); p < P, so
                 // p * step + kx * ic + c < (P - 1) * step + kw * ic, the length of `span`.
                 let w: [V; VECS] = core::array::from_fn(|v| unsafe {
-                    V::load_unchecked(taps.add((kx * ic + c) * oc + channels + v * V::LANES))
+                    V::load_aligned_unchecked(
+                        taps.add((kx * ic + c) * oc + channels + v * V::LANES),
+                    )
                 });
                 for (p, acc) in acc.iter_mut().enumerate() {
                     let x = V::splat(unsafe { *span.add(p * step + kx * ic + c) });
