@@ -185,24 +185,22 @@ pub(crate) fn conv_any<M: MulAdd>(
     }
 }
 
-/// Max pooling of an NHWC map `[h][w][c]` (no padding), optionally clamped at zero
-/// (a ReLU before the pool, since both are monotone).
+/// Max pooling of an NHWC map `[h][w][c]` (no padding). A ReLU next to the pool is folded
+/// into the convolution before it (both are monotone), so the pool has no clamp of its own.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)] // a pooling window is this many numbers
 pub(crate) fn max_pool_nhwc(
     input: &[f32],
     [_, w, c]: [usize; 3],
     kernel: [usize; 2],
     stride: [usize; 2],
     out_size: [usize; 2],
-    relu: bool,
     out: &mut [f32],
 ) {
     let [oh, ow] = out_size;
     for oy in 0..oh {
         for ox in 0..ow {
             let target = &mut out[(oy * ow + ox) * c..(oy * ow + ox + 1) * c];
-            target.fill(if relu { 0.0 } else { f32::NEG_INFINITY });
+            target.fill(f32::NEG_INFINITY);
             for ky in 0..kernel[0] {
                 for kx in 0..kernel[1] {
                     let (y, x) = (oy * stride[0] + ky, ox * stride[1] + kx);

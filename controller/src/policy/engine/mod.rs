@@ -202,6 +202,20 @@ mod tests {
     use super::*;
     use tract_onnx::prelude::Framework;
 
+    /// The CNN fixture's file and parsed model.
+    fn cnn_fixture() -> (PathBuf, pb::ModelProto) {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");
+        let bytes = std::fs::read(&path).expect("fixture");
+        let proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut &bytes[..])
+            .expect("parses");
+        (path, proto)
+    }
+
+    /// The CNN fixture's inputs: names and shapes.
+    const CNN_INPUTS: [(&str, &[usize]); 2] =
+        [("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])];
+
     #[test]
     fn aligned_weights_start_on_a_32_byte_boundary_and_keep_their_values() {
         for len in [0, 1, 7, 8, 25 * 16, 1000] {
@@ -223,15 +237,10 @@ mod tests {
 
     #[test]
     fn each_pool_of_the_cnn_fixture_is_folded_into_its_convolution() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");
-        let bytes = std::fs::read(&path).expect("fixture");
-        let proto = tract_onnx::onnx()
-            .proto_model_for_read(&mut &bytes[..])
-            .expect("parses");
+        let (path, proto) = cnn_fixture();
         let graph = proto.graph.as_ref().expect("graph");
-        let inputs: [(&str, &[usize]); 2] =
-            [("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])];
-        let network = CompiledNetwork::lower(&path, graph, &inputs, Isa::Portable).expect("lowers");
+        let network =
+            CompiledNetwork::lower(&path, graph, &CNN_INPUTS, Isa::Portable).expect("lowers");
         let pools = graph.node.iter().filter(|n| n.op_type == "MaxPool").count();
         let folded: Vec<_> = network
             .steps
@@ -261,16 +270,11 @@ mod tests {
     #[test]
     #[ignore = "profiling aid: cargo test --release -p dribble-controller profile -- --ignored --nocapture"]
     fn profile_the_cnn_fixture() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");
-        let bytes = std::fs::read(&path).expect("fixture");
-        let proto = tract_onnx::onnx()
-            .proto_model_for_read(&mut &bytes[..])
-            .expect("parses");
+        let (path, proto) = cnn_fixture();
         let graph = proto.graph.as_ref().expect("graph");
         for isa in Isa::available() {
-            let inputs: [(&str, &[usize]); 2] =
-                [("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])];
-            let mut network = CompiledNetwork::lower(&path, graph, &inputs, isa).expect("lowers");
+            let mut network =
+                CompiledNetwork::lower(&path, graph, &CNN_INPUTS, isa).expect("lowers");
             let report = network.profile(200);
             let total: std::time::Duration = report.iter().map(|(_, t)| *t).sum();
             println!("{isa}: {total:?}");

@@ -31,7 +31,7 @@ pub(crate) trait Kernels {
         out_size: [usize; 2],
         out: &mut [f32],
     ) {
-        kernels::max_pool_nhwc(input, size, kernel, stride, out_size, false, out);
+        kernels::max_pool_nhwc(input, size, kernel, stride, out_size, out);
     }
 }
 
@@ -136,10 +136,7 @@ impl Kernels for SseKernels {
         out_size: [usize; 2],
         out: &mut [f32],
     ) {
-        use super::simd::{Sse, max_pool};
-        if !max_pool::<Sse>(input, size, kernel, stride, out_size, out) {
-            kernels::max_pool_nhwc(input, size, kernel, stride, out_size, false, out);
-        }
+        super::simd::max_pool::<super::simd::Sse>(input, size, kernel, stride, out_size, out);
     }
 }
 
@@ -200,10 +197,7 @@ impl Kernels for AvxKernels {
         out_size: [usize; 2],
         out: &mut [f32],
     ) {
-        use super::simd::{Avx, max_pool};
-        if !max_pool::<Avx>(input, size, kernel, stride, out_size, out) {
-            kernels::max_pool_nhwc(input, size, kernel, stride, out_size, false, out);
-        }
+        super::simd::max_pool::<super::simd::Avx>(input, size, kernel, stride, out_size, out);
     }
 }
 
@@ -218,34 +212,31 @@ pub(crate) type BufferId = usize;
 /// `Vec`'s heap buffer stays where it is when the `Vec` moves.
 #[derive(Clone, PartialEq)]
 pub(crate) struct AlignedWeights {
+    /// The values, with `SLACK` spare floats around them.
     storage: Vec<f32>,
     start: usize,
-    len: usize,
 }
 
 impl AlignedWeights {
     /// The boundary, in bytes: an AVX register's width.
     pub(crate) const ALIGN: usize = 32;
+    const SLACK: usize = Self::ALIGN / size_of::<f32>();
 
     pub(crate) fn new(values: &[f32]) -> Self {
-        const SLACK: usize = AlignedWeights::ALIGN / size_of::<f32>();
-        let mut storage = vec![0.0; values.len() + SLACK];
+        let mut storage = vec![0.0; values.len() + Self::SLACK];
         // Below SLACK for a 4-byte-aligned buffer; should it ever say "cannot", the values
         // start at 0 and the vector kernels, which check, leave the work to the generic ones.
         let start = match storage.as_ptr().align_offset(Self::ALIGN) {
-            offset if offset < SLACK => offset,
+            offset if offset < Self::SLACK => offset,
             _ => 0,
         };
         storage[start..start + values.len()].copy_from_slice(values);
-        Self {
-            storage,
-            start,
-            len: values.len(),
-        }
+        Self { storage, start }
     }
 
     pub(crate) fn as_slice(&self) -> &[f32] {
-        &self.storage[self.start..self.start + self.len]
+        let len = self.storage.len() - Self::SLACK;
+        &self.storage[self.start..self.start + len]
     }
 }
 

@@ -232,21 +232,22 @@ pub(crate) fn conv_rows<
                     &mut out_row[block * P * oc..(block + 1) * P * oc],
                 );
             }
-            if ow % P != 0 && blocks > 0 {
+            if blocks == 0 {
+                // A row narrower than one block: single pixels.
+                for ox in 0..ow {
+                    conv_block::<V, VECS, 1, IC, KW>(
+                        shape,
+                        padded,
+                        weights,
+                        &bias,
+                        relu,
+                        [oy, ox],
+                        channels,
+                        &mut out_row[ox * oc..(ox + 1) * oc],
+                    );
+                }
+            } else if !ow.is_multiple_of(P) {
                 block_at(ow - P, &mut out_row[(ow - P) * oc..]);
-            }
-            // A row narrower than one block: single pixels.
-            for ox in 0..if blocks == 0 { ow } else { 0 } {
-                conv_block::<V, VECS, 1, IC, KW>(
-                    shape,
-                    padded,
-                    weights,
-                    &bias,
-                    relu,
-                    [oy, ox],
-                    channels,
-                    &mut out_row[ox * oc..(ox + 1) * oc],
-                );
             }
         }
     }
@@ -313,19 +314,20 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize, const IC: usize, con
     }
 }
 
-/// [`super::kernels::max_pool_nhwc`] over vectors (without the clamp at zero). Returns
-/// false (nothing written) when the channels are not a whole number of vectors.
+/// [`super::kernels::max_pool_nhwc`] over vectors; channels that are not a whole number
+/// of vectors go to that scalar version.
 #[inline(always)]
 pub(crate) fn max_pool<V: Vector>(
     input: &[f32],
-    [_, w, c]: [usize; 3],
+    size @ [_, w, c]: [usize; 3],
     kernel: [usize; 2],
     stride: [usize; 2],
     [oh, ow]: [usize; 2],
     out: &mut [f32],
-) -> bool {
+) {
     if c == 0 || !c.is_multiple_of(V::LANES) {
-        return false;
+        super::kernels::max_pool_nhwc(input, size, kernel, stride, [oh, ow], out);
+        return;
     }
     if kernel == [2, 2] && stride == [2, 2] {
         // The networks' pool: two input rows per output row, two pixels per output pixel,
@@ -346,7 +348,7 @@ pub(crate) fn max_pool<V: Vector>(
                 }
             }
         }
-        return true;
+        return;
     }
     for oy in 0..oh {
         for ox in 0..ow {
@@ -366,7 +368,6 @@ pub(crate) fn max_pool<V: Vector>(
             }
         }
     }
-    true
 }
 
 /// [`super::kernels::dense`] over vectors: four rows at a time.
