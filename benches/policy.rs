@@ -1,6 +1,6 @@
 //! Policy steps of the committed fixture policies (the paper's architectures with seeded
-//! weights), per kind, on the compiled engine (this CPU's widest instruction set, the Nao
-//! V6's SSE4.2 and the V5's SSSE3) and on tract. Whole ticks with a real policy are in
+//! weights), per kind, on the compiled engine (this CPU's widest instruction set, AVX2+FMA
+//! where that is wider still, the Nao V6's SSE4.2 and the V5's SSSE3) and on tract. Whole ticks with a real policy are in
 //! `benches/tick.rs`.
 //!
 //! tract chooses its kernels once per process from `TRACT_CPU_ISA`, so its SSE-only figures
@@ -49,7 +49,7 @@ fn engines() -> Vec<(String, Engine, Option<Isa>)> {
         Engine::Compiled,
         Some(Isa::detect()),
     )];
-    for isa in [Isa::Sse42, Isa::Ssse3] {
+    for isa in [Isa::Avx2Fma, Isa::Sse42, Isa::Ssse3] {
         if isa.is_available() && isa != Isa::detect() {
             engines.push((format!("engine {isa}"), Engine::Compiled, Some(isa)));
         }

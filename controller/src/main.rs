@@ -34,7 +34,7 @@ struct Cli {
     /// says why).
     #[arg(long, default_value = "compiled", global = true)]
     engine: Engine,
-    /// The compiled engine's instruction set (portable, sse2, ssse3, sse4.2, avx2+fma).
+    /// The compiled engine's instruction set (portable, sse2, ssse3, sse4.2, avx2+fma, avx512).
     /// Default: the widest this CPU runs.
     #[arg(long, global = true)]
     isa: Option<Isa>,

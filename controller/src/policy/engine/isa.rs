@@ -24,15 +24,19 @@ pub enum Isa {
     Sse42,
     /// AVX2 with FMA: development machines.
     Avx2Fma,
+    /// AVX-512 (foundation) with AVX2 and FMA: newer development and server machines;
+    /// sixteen lanes and thirty-two registers.
+    Avx512,
 }
 
 impl Isa {
-    pub const ALL: [Self; 5] = [
+    pub const ALL: [Self; 6] = [
         Self::Portable,
         Self::Sse2,
         Self::Ssse3,
         Self::Sse42,
         Self::Avx2Fma,
+        Self::Avx512,
     ];
 
     pub fn name(self) -> &'static str {
@@ -42,6 +46,7 @@ impl Isa {
             Self::Ssse3 => "ssse3",
             Self::Sse42 => "sse4.2",
             Self::Avx2Fma => "avx2+fma",
+            Self::Avx512 => "avx512",
         }
     }
 
@@ -66,11 +71,27 @@ impl Isa {
                         && std::arch::is_x86_feature_detected!("avx2")
                         && std::arch::is_x86_feature_detected!("fma")
                 }
+                Self::Avx512 => {
+                    Self::Avx2Fma.is_available() && std::arch::is_x86_feature_detected!("avx512f")
+                }
             }
         }
         #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
         {
             self == Self::Portable
+        }
+    }
+
+    /// How many outputs of a dense layer the set's kernel keeps in registers at once: eight
+    /// accumulators of AVX2 or of SSE on x86-64 (sixteen registers), four of AVX-512 (a
+    /// 2560x128 layer's 128 outputs in two panels), four of SSE on the 32-bit V5 build
+    /// (eight registers, two of them for the input and a product).
+    pub(crate) fn dense_panel_width(self) -> usize {
+        match self {
+            Self::Portable => 16,
+            Self::Sse2 | Self::Ssse3 | Self::Sse42 if cfg!(target_arch = "x86") => 16,
+            Self::Sse2 | Self::Ssse3 | Self::Sse42 => 32,
+            Self::Avx2Fma | Self::Avx512 => 64,
         }
     }
 

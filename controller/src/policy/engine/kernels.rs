@@ -8,7 +8,8 @@
 //!
 //! Layouts: feature maps are NHWC (channels innermost, batch 1), so a pixel's output
 //! channels are one contiguous run that the vector registers hold; convolution weights are
-//! re-laid out at load as `[ky][kx][in][out]`, dense weights as `[out][in]`.
+//! re-laid out at load as `[ky][kx][in][out]`, dense weights in column panels
+//! `[panel][in][width]` ([`DenseWeights`]).
 
 /// How `a * b + c` is computed: fused (one rounding, the FMA instruction) or as a product
 /// and a sum.
@@ -38,6 +39,8 @@ impl MulAdd for Separate {
         a * b + c
     }
 }
+
+use super::plan::DenseWeights;
 
 /// The shape of one convolution on a zero-bordered NHWC input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -214,60 +217,69 @@ pub(crate) fn max_pool_nhwc(
     }
 }
 
-/// `y[n] = bias[n] + sum_k x[k] * w[n][k]` (`w` is `[n][k]`), four rows at a time so each
-/// load of `x` serves four rows, eight lanes per row.
+/// The indices of `x`'s non-zero values, in order, into the front of `nonzero` (which holds
+/// at least `x.len()`); returns how many. Without a branch on the values: every index is
+/// written and the count moves on past a non-zero one (NaN included), so the time taken
+/// does not depend on where the zeros are.
 #[inline(always)]
-pub(crate) fn dense<M: MulAdd>(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
-    const LANES: usize = 8;
-    let k = x.len();
-    let (xs, x_tail) = x.as_chunks::<LANES>();
-    let whole = xs.len() * LANES;
-    let n = y.len();
-    let mut start = 0;
-    while start + 4 <= n {
-        let rows: [&[f32]; 4] =
-            core::array::from_fn(|r| &weights[(start + r) * k..(start + r + 1) * k]);
-        let chunks: [&[[f32; LANES]]; 4] = core::array::from_fn(|r| rows[r].as_chunks::<LANES>().0);
-        let mut acc = [[0.0f32; LANES]; 4];
-        let [c0, c1, c2, c3] = chunks;
-        for ((((xc, w0), w1), w2), w3) in xs.iter().zip(c0).zip(c1).zip(c2).zip(c3) {
-            let wc = [w0, w1, w2, w3];
-            for r in 0..4 {
-                for l in 0..LANES {
-                    acc[r][l] = M::mul_add(xc[l], wc[r][l], acc[r][l]);
-                }
-            }
+pub(crate) fn nonzero_indices(x: &[f32], nonzero: &mut [u32]) -> usize {
+    debug_assert!(nonzero.len() >= x.len(), "scratch sized at load");
+    let mut count = 0;
+    for (i, &value) in x.iter().enumerate() {
+        // `count <= i < nonzero.len()`: the slot is always there.
+        if let Some(slot) = nonzero.get_mut(count) {
+            *slot = i as u32;
         }
-        for r in 0..4 {
-            let mut sum = horizontal_sum(&acc[r]);
-            for (j, &xv) in x_tail.iter().enumerate() {
-                sum = M::mul_add(xv, rows[r][whole + j], sum);
-            }
-            y[start + r] = sum + bias[start + r];
-        }
-        start += 4;
+        count += usize::from(value != 0.0);
     }
-    for row in start..n {
-        let w = &weights[row * k..(row + 1) * k];
-        let (chunks, _) = w.as_chunks::<LANES>();
-        let mut acc = [0.0f32; LANES];
-        for (xc, wc) in xs.iter().zip(chunks) {
-            for l in 0..LANES {
-                acc[l] = M::mul_add(xc[l], wc[l], acc[l]);
-            }
-        }
-        let mut sum = horizontal_sum(&acc);
-        for (j, &xv) in x_tail.iter().enumerate() {
-            sum = M::mul_add(xv, w[whole + j], sum);
-        }
-        y[row] = sum + bias[row];
+    count.min(nonzero.len())
+}
+
+/// `y = bias + W x` for a dense layer in column panels ([`DenseWeights`]), `W` outputs a
+/// panel, inputs that are zero skipped; `nonzero` is scratch for [`nonzero_indices`].
+#[inline(always)]
+pub(crate) fn dense<M: MulAdd>(
+    x: &[f32],
+    weights: &DenseWeights,
+    bias: &[f32],
+    y: &mut [f32],
+    nonzero: &mut [u32],
+) {
+    match weights.width() {
+        8 => dense_panels::<M, 8>(x, weights, bias, y, nonzero),
+        16 => dense_panels::<M, 16>(x, weights, bias, y, nonzero),
+        32 => dense_panels::<M, 32>(x, weights, bias, y, nonzero),
+        _ => dense_panels::<M, 64>(x, weights, bias, y, nonzero),
     }
 }
 
 #[inline(always)]
-fn horizontal_sum(lanes: &[f32; 8]) -> f32 {
-    ((lanes[0] + lanes[4]) + (lanes[1] + lanes[5]))
-        + ((lanes[2] + lanes[6]) + (lanes[3] + lanes[7]))
+fn dense_panels<M: MulAdd, const W: usize>(
+    x: &[f32],
+    weights: &DenseWeights,
+    bias: &[f32],
+    y: &mut [f32],
+    nonzero: &mut [u32],
+) {
+    let k = weights.inputs();
+    let x = &x[..k];
+    let count = nonzero_indices(x, nonzero);
+    let nonzero = &nonzero[..count];
+    let (rows, _) = weights.panels().as_chunks::<W>();
+    let outputs = weights.outputs().min(y.len());
+    let targets = y[..outputs].chunks_mut(W).zip(bias.chunks(W));
+    for (rows, (y, bias)) in rows.chunks_exact(k).zip(targets) {
+        let mut acc = [0.0f32; W];
+        for &i in nonzero {
+            let (value, row) = (x[i as usize], &rows[i as usize]);
+            for l in 0..W {
+                acc[l] = M::mul_add(value, row[l], acc[l]);
+            }
+        }
+        for ((t, a), b) in y.iter_mut().zip(acc).zip(bias) {
+            *t = a + b;
+        }
+    }
 }
 
 /// One LSTM step (ONNX gate order input, output, forget, cell): `gates` holds

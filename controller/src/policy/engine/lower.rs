@@ -17,7 +17,7 @@ use tract_onnx::pb;
 
 use super::kernels::ConvShape;
 use super::plan::{
-    AlignedWeights, BinaryOp, BufferId, ConvPool, MAX_RANK, ReduceOp, Step, Strided,
+    AlignedWeights, BinaryOp, BufferId, ConvPool, DenseWeights, MAX_RANK, ReduceOp, Step, Strided,
 };
 
 /// Why a graph cannot be lowered (it then runs under tract).
@@ -73,10 +73,18 @@ struct Lowerer<'g> {
     producer: HashMap<String, usize>,
     /// Buffers whose contents are constants or graph inputs: never written by a step.
     fixed: Vec<bool>,
+    /// The widest panel of a dense layer's weights.
+    dense_width: usize,
 }
 
-/// Lowers `graph` for inputs of the given shapes.
-pub(crate) fn lower(graph: &pb::GraphProto, inputs: &[(&str, &[usize])]) -> Lowered<Lowering> {
+/// Lowers `graph` for inputs of the given shapes;
+/// `dense_width`: the most outputs a dense layer's weight panel holds (the kernels' choice,
+/// [`super::Isa::dense_panel_width`]).
+pub(crate) fn lower(
+    graph: &pb::GraphProto,
+    inputs: &[(&str, &[usize])],
+    dense_width: usize,
+) -> Lowered<Lowering> {
     let mut lowerer = Lowerer {
         graph,
         values: HashMap::new(),
@@ -85,6 +93,7 @@ pub(crate) fn lower(graph: &pb::GraphProto, inputs: &[(&str, &[usize])]) -> Lowe
         readers: HashMap::new(),
         producer: HashMap::new(),
         fixed: Vec::new(),
+        dense_width,
     };
     for node in &graph.node {
         for input in node.input.iter().filter(|i| !i.is_empty()) {
@@ -911,6 +920,8 @@ impl Lowerer<'_> {
     ) {
         let outputs = bias.len();
         let rows = shape.iter().product::<usize>() / outputs.max(1);
+        let inputs = weights.len() / outputs.max(1);
+        let weights = DenseWeights::from_rows(&weights, outputs, inputs, self.dense_width);
         let to = self.buffer(rows * outputs);
         self.push(
             output,
@@ -1174,6 +1185,7 @@ impl Lowerer<'_> {
         let joined = self.buffer(width);
         let gate_values = self.buffer(gates);
         let (h_out, c_out) = (self.buffer(units), self.buffer(units));
+        let weights = DenseWeights::from_rows(&weights, gates, width, self.dense_width);
         self.steps.push(Step::Lstm {
             x,
             h_in,

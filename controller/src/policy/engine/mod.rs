@@ -36,6 +36,8 @@ pub struct CompiledNetwork {
     isa: Isa,
     steps: Vec<Step>,
     buffers: Vec<Vec<f32>>,
+    /// Scratch for the dense layers' lists of non-zero inputs.
+    nonzero: Vec<u32>,
     inputs: Vec<(String, BufferId)>,
     outputs: Vec<(String, BufferId, usize)>,
 }
@@ -52,7 +54,7 @@ impl CompiledNetwork {
         if !isa.is_available() {
             return Err(Unsupported(format!("this CPU cannot run {isa} kernels")));
         }
-        let lowering = lower::lower(graph, inputs)?;
+        let lowering = lower::lower(graph, inputs, isa.dense_panel_width())?;
         let mut buffers = lowering.buffers;
         // Constants folded into the steps (weights, biases) need no buffer of their own.
         let mut used = vec![false; buffers.len()];
@@ -73,11 +75,21 @@ impl CompiledNetwork {
                 *buffer = Vec::new();
             }
         }
+        let widest_dense = lowering
+            .steps
+            .iter()
+            .filter_map(|step| match step {
+                Step::Dense { weights, .. } | Step::Lstm { weights, .. } => Some(weights.inputs()),
+                _ => None,
+            })
+            .max()
+            .unwrap_or(0);
         Ok(Self {
             path: path.to_owned(),
             isa,
             steps: lowering.steps,
             buffers,
+            nonzero: vec![0; widest_dense],
             inputs: lowering.inputs,
             outputs: lowering.outputs,
         })
@@ -132,7 +144,12 @@ impl CompiledNetwork {
         for i in 0..self.steps.len() {
             let started = std::time::Instant::now();
             for _ in 0..repeats {
-                execute(self.isa, &self.steps[i..i + 1], &mut self.buffers);
+                execute(
+                    self.isa,
+                    &self.steps[i..i + 1],
+                    &mut self.buffers,
+                    &mut self.nonzero,
+                );
             }
             let name = format!("{:?}", self.steps[i]).chars().take(60).collect();
             report.push((name, started.elapsed() / repeats));
@@ -142,58 +159,64 @@ impl CompiledNetwork {
 
     /// Runs the plan on the inputs as they are. Allocates nothing.
     pub fn run(&mut self) {
-        execute(self.isa, &self.steps, &mut self.buffers);
+        execute(self.isa, &self.steps, &mut self.buffers, &mut self.nonzero);
     }
 }
 
 // The one `unsafe` of the engine: calling the kernels compiled for an instruction set,
 // which is sound only on a CPU that has it.
 #[allow(unsafe_code)]
-fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>]) {
+fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
     #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
     // SAFETY: `CompiledNetwork::lower` refuses an instruction set this CPU does not run, and
     // `isa` cannot change afterwards.
     unsafe {
         match isa {
-            Isa::Avx2Fma => return x86::run_avx2_fma(steps, buffers),
-            Isa::Sse42 => return x86::run_sse42(steps, buffers),
-            Isa::Ssse3 => return x86::run_ssse3(steps, buffers),
-            Isa::Sse2 => return x86::run_sse2(steps, buffers),
+            Isa::Avx512 => return x86::run_avx512(steps, buffers, nonzero),
+            Isa::Avx2Fma => return x86::run_avx2_fma(steps, buffers, nonzero),
+            Isa::Sse42 => return x86::run_sse42(steps, buffers, nonzero),
+            Isa::Ssse3 => return x86::run_ssse3(steps, buffers, nonzero),
+            Isa::Sse2 => return x86::run_sse2(steps, buffers, nonzero),
             Isa::Portable => {}
         }
     }
     let _ = isa;
-    run_portable(steps, buffers);
+    run_portable(steps, buffers, nonzero);
 }
 
 /// The portable path: no target features, product and sum rounded separately.
 #[inline(never)]
-fn run_portable(steps: &[Step], buffers: &mut [Vec<f32>]) {
-    plan::run::<plan::Generic<kernels::Separate>>(steps, buffers);
+fn run_portable(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+    plan::run::<plan::Generic<kernels::Separate>>(steps, buffers, nonzero);
 }
 
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod x86 {
-    use super::plan::{AvxKernels, SseKernels, Step, run};
+    use super::plan::{Avx512Kernels, AvxKernels, SseKernels, Step, run};
+
+    #[target_feature(enable = "avx,avx2,fma,avx512f")]
+    pub(super) fn run_avx512(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+        run::<Avx512Kernels>(steps, buffers, nonzero);
+    }
 
     #[target_feature(enable = "avx,avx2,fma")]
-    pub(super) fn run_avx2_fma(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<AvxKernels>(steps, buffers);
+    pub(super) fn run_avx2_fma(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+        run::<AvxKernels>(steps, buffers, nonzero);
     }
 
     #[target_feature(enable = "sse2,sse3,ssse3,sse4.1,sse4.2")]
-    pub(super) fn run_sse42(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<SseKernels>(steps, buffers);
+    pub(super) fn run_sse42(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+        run::<SseKernels>(steps, buffers, nonzero);
     }
 
     #[target_feature(enable = "sse2,sse3,ssse3")]
-    pub(super) fn run_ssse3(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<SseKernels>(steps, buffers);
+    pub(super) fn run_ssse3(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+        run::<SseKernels>(steps, buffers, nonzero);
     }
 
     #[target_feature(enable = "sse2")]
-    pub(super) fn run_sse2(steps: &[Step], buffers: &mut [Vec<f32>]) {
-        run::<SseKernels>(steps, buffers);
+    pub(super) fn run_sse2(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+        run::<SseKernels>(steps, buffers, nonzero);
     }
 }
 
@@ -217,7 +240,7 @@ mod tests {
         [("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])];
 
     #[test]
-    fn aligned_weights_start_on_a_32_byte_boundary_and_keep_their_values() {
+    fn aligned_weights_start_on_a_64_byte_boundary_and_keep_their_values() {
         for len in [0, 1, 7, 8, 25 * 16, 1000] {
             let values: Vec<f32> = (0..len).map(|i| i as f32 * 0.5 - 3.0).collect();
             // Moved after construction, as a plan's steps are.
@@ -233,6 +256,111 @@ mod tests {
                 slice.as_ptr()
             );
         }
+    }
+
+    /// A plan of one dense layer, `inputs` -> `outputs`, panels as `isa` lays them out.
+    fn dense_plan(isa: Isa, weights: &[f32], bias: &[f32], x: &[f32]) -> CompiledNetwork {
+        let (outputs, inputs) = (bias.len(), x.len());
+        CompiledNetwork {
+            path: PathBuf::from("dense"),
+            isa,
+            steps: vec![Step::Dense {
+                from: 0,
+                weights: plan::DenseWeights::from_rows(
+                    weights,
+                    outputs,
+                    inputs,
+                    isa.dense_panel_width(),
+                ),
+                bias: bias.to_vec(),
+                rows: 1,
+                relu: false,
+                to: 1,
+            }],
+            buffers: vec![x.to_vec(), vec![f32::NAN; outputs]],
+            nonzero: vec![u32::MAX; inputs],
+            inputs: vec![],
+            outputs: vec![("y".into(), 1, outputs)],
+        }
+    }
+
+    #[test]
+    fn dense_panels_skip_zero_inputs_and_match_the_plain_sum_on_every_path() {
+        for (inputs, outputs) in [(2560, 128), (192, 256), (128, 3), (13, 130), (1, 8)] {
+            let weights: Vec<f32> = (0..inputs * outputs)
+                .map(|i| ((i * 7919 % 1000) as f32 - 500.0) / 4000.0)
+                .collect();
+            let bias: Vec<f32> = (0..outputs).map(|o| o as f32 / 100.0 - 0.5).collect();
+            // Every third input zero (as after ReLU), one a negative zero.
+            let mut x: Vec<f32> = (0..inputs)
+                .map(|i| {
+                    if i % 3 == 1 {
+                        0.0
+                    } else {
+                        (i % 11) as f32 / 7.0 - 0.6
+                    }
+                })
+                .collect();
+            if inputs > 5 {
+                x[5] = -0.0;
+            }
+            // The sum in f64, and a bound on f32's rounding: 1e-6 of the terms' magnitude.
+            let expected: Vec<(f64, f64)> = (0..outputs)
+                .map(|o| {
+                    let row = &weights[o * inputs..(o + 1) * inputs];
+                    let terms = row.iter().zip(&x).map(|(&w, &v)| w as f64 * v as f64);
+                    let magnitude: f64 = terms.clone().map(f64::abs).sum();
+                    (
+                        terms.sum::<f64>() + bias[o] as f64,
+                        1e-6 * (1.0 + magnitude),
+                    )
+                })
+                .collect();
+            for isa in Isa::available() {
+                let mut plan = dense_plan(isa, &weights, &bias, &x);
+                plan.run();
+                let y = plan.output("y").expect("output");
+                for (o, (&got, &(want, bound))) in y.iter().zip(&expected).enumerate() {
+                    assert!(
+                        (got as f64 - want).abs() <= bound,
+                        "{isa}, {inputs}x{outputs}, output {o}: {got} against {want}"
+                    );
+                }
+                // A NaN input is not skipped: it reaches every output.
+                let mut with_nan = x.clone();
+                with_nan[0] = f32::NAN;
+                let mut plan = dense_plan(isa, &weights, &bias, &with_nan);
+                plan.run();
+                assert!(
+                    plan.output("y").expect("output").iter().all(|v| v.is_nan()),
+                    "{isa}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn dense_panels_are_as_wide_as_the_outputs_need_and_the_kernels_hold() {
+        let panel =
+            |outputs, max| plan::DenseWeights::from_rows(&vec![1.0; outputs * 4], outputs, 4, max);
+        assert_eq!(panel(3, 64).width(), 8);
+        assert_eq!(panel(9, 64).width(), 16);
+        assert_eq!(panel(128, 64).width(), 64);
+        assert_eq!(panel(128, 16).width(), 16);
+        let weights = panel(20, 16);
+        // Two panels of 16: outputs 16..20 in the second, its other columns zero.
+        assert_eq!(weights.panels().len(), 2 * 4 * 16);
+        assert_eq!(
+            &weights.panels()[4 * 16..4 * 16 + 5],
+            &[1.0, 1.0, 1.0, 1.0, 0.0]
+        );
+        assert!(
+            weights
+                .panels()
+                .as_ptr()
+                .addr()
+                .is_multiple_of(plan::AlignedWeights::ALIGN)
+        );
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! Vector kernels for x86: the convolution and the dense layer written over explicit vector
-//! registers (`__m128` for the SSE sets, `__m256` with FMA for AVX2), so that the
+//! registers (`__m128` for the SSE sets, `__m256` with FMA for AVX2, `__m512` for AVX-512),
+//! so that the
 //! accumulators of a block of output pixels stay in registers. Left to itself the compiler
 //! splits fixed-size float arrays into scalars and vectorises only part of them back (the
 //! generic kernels in [`super::kernels`] ran at about a third of tract's speed for that
@@ -15,20 +16,45 @@ use std::arch::x86::*;
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
-use super::kernels::ConvShape;
+use super::kernels::{ConvShape, nonzero_indices};
+use super::plan::DenseWeights;
 
 /// A vector of `LANES` floats and the operations the kernels need.
 pub(crate) trait Vector: Copy {
     const LANES: usize;
+    /// Whether [`Self::splat4`] beats four [`Self::splat`]s: true for SSE, whose broadcast
+    /// of a scalar from memory takes two instructions (a load and a shuffle) where one load
+    /// and one shuffle per value serve four; AVX broadcasts from memory in one.
+    const QUAD_BROADCAST: bool;
     fn zero() -> Self;
     fn splat(x: f32) -> Self;
-    /// The first `LANES` values of `values` (which must hold that many).
-    fn load(values: &[f32]) -> Self;
-    /// The `LANES` values from `values`.
+    /// Four vectors, each the broadcast of one of `values[0..4]`.
     ///
     /// # Safety
-    /// `values` must point at `LANES` readable floats.
-    unsafe fn load_unchecked(values: *const f32) -> Self;
+    /// `values` must point at four readable floats.
+    unsafe fn splat4(values: *const f32) -> [Self; 4];
+    /// A kernel window of a single pixel into four vectors of output channels: `rows` rows
+    /// of `taps` consecutive inputs, `x_row` floats apart, the weights of tap `t` of row `r`
+    /// at `w[(r * taps + t) * w_stride ..]`; `acc[v] += x * w[.. + v * LANES]` tap by tap in
+    /// that order. Returns false, having done nothing, where the set has no such kernel.
+    ///
+    /// # Safety
+    /// `x` must point at `rows` rows of `taps` readable floats, `x_row` floats apart, and `w`
+    /// at `rows * taps` rows `w_stride` floats apart, each with `4 * LANES` readable floats
+    /// from a `LANES`-float boundary; `w_stride` a multiple of `LANES`.
+    #[inline(always)]
+    unsafe fn window_of_taps4(
+        _acc: &mut [Self; 4],
+        _x: *const f32,
+        _x_row: usize,
+        _w: *const f32,
+        [_rows, _taps]: [usize; 2],
+        _w_stride: usize,
+    ) -> bool {
+        false
+    }
+    /// The first `LANES` values of `values` (which must hold that many).
+    fn load(values: &[f32]) -> Self;
     /// The `LANES` values from `values`, which sit on a boundary of `LANES` floats.
     ///
     /// # Safety
@@ -38,7 +64,6 @@ pub(crate) trait Vector: Copy {
     /// `a * b + c`: fused where the set has FMA.
     fn mul_add(a: Self, b: Self, c: Self) -> Self;
     fn max(a: Self, b: Self) -> Self;
-    fn sum(self) -> f32;
 }
 
 /// Four floats in an SSE register; product and sum rounded separately.
@@ -51,6 +76,166 @@ pub(crate) struct Sse(__m128);
 // store is checked to stay inside its slice first.
 impl Vector for Sse {
     const LANES: usize = 4;
+    // Not on the 32-bit V5 build: its eight registers cannot hold the four broadcasts beside
+    // the accumulators, and the spills cost more than the shuffles save (callgrind:
+    // 7.97 M instructions per CNN forward against 7.85 M).
+    const QUAD_BROADCAST: bool = cfg!(target_arch = "x86_64");
+
+    /// On the 32-bit V5 build, in assembly: the whole window in one loop nest, four taps at
+    /// a time where a row has them (their inputs loaded once and broadcast by `pshufd`),
+    /// four accumulators, a product and the broadcasts in seven of the eight registers.
+    /// Written out because the compiler, given the same loops in intrinsics, interleaves the
+    /// taps and spills accumulators to the stack (callgrind: about a fifth of the
+    /// convolution's instructions were spills and reloads), and spends as many again on
+    /// each short row's loop. The arithmetic and its order are those of the intrinsics:
+    /// `mulps`, then `addps`, tap by tap.
+    #[cfg(target_arch = "x86")]
+    #[inline(always)]
+    unsafe fn window_of_taps4(
+        acc: &mut [Self; 4],
+        x: *const f32,
+        x_row: usize,
+        w: *const f32,
+        [rows, taps]: [usize; 2],
+        w_stride: usize,
+    ) -> bool {
+        if rows == 0 {
+            return true;
+        }
+        let [mut a0, mut a1, mut a2, mut a3] = acc.map(|a| a.0);
+        // Quads and single taps a row, bytes from a row's end to the next row's start, rows
+        // left (counted down by the loop), bytes from one tap's weights to the next.
+        let mut counts: [usize; 5] = [
+            taps / 4,
+            taps % 4,
+            (x_row - taps) * size_of::<f32>(),
+            rows,
+            w_stride * size_of::<f32>(),
+        ];
+        // SAFETY: the caller's promise: the loops read, row by row, the row's inputs and,
+        // tap by tap, four aligned vectors of the tap's weights, in order; they write only
+        // `counts`' rows-left field.
+        unsafe {
+            core::arch::asm!(
+                "3:",
+                "mov {n}, dword ptr [{p}]",
+                "test {n}, {n}",
+                "jz 5f",
+                "2:",
+                "movups {v}, xmmword ptr [{x}]",
+                    "pshufd {b}, {v}, 0x00",
+                    "movaps {t}, xmmword ptr [{w}]",
+                    "mulps {t}, {b}",
+                    "addps {a0}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 16]",
+                    "mulps {t}, {b}",
+                    "addps {a1}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 32]",
+                    "mulps {t}, {b}",
+                    "addps {a2}, {t}",
+                    "mulps {b}, xmmword ptr [{w} + 48]",
+                    "addps {a3}, {b}",
+                    "add {w}, dword ptr [{p} + 16]",
+                    "pshufd {b}, {v}, 0x55",
+                    "movaps {t}, xmmword ptr [{w}]",
+                    "mulps {t}, {b}",
+                    "addps {a0}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 16]",
+                    "mulps {t}, {b}",
+                    "addps {a1}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 32]",
+                    "mulps {t}, {b}",
+                    "addps {a2}, {t}",
+                    "mulps {b}, xmmword ptr [{w} + 48]",
+                    "addps {a3}, {b}",
+                    "add {w}, dword ptr [{p} + 16]",
+                    "pshufd {b}, {v}, 0xaa",
+                    "movaps {t}, xmmword ptr [{w}]",
+                    "mulps {t}, {b}",
+                    "addps {a0}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 16]",
+                    "mulps {t}, {b}",
+                    "addps {a1}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 32]",
+                    "mulps {t}, {b}",
+                    "addps {a2}, {t}",
+                    "mulps {b}, xmmword ptr [{w} + 48]",
+                    "addps {a3}, {b}",
+                    "add {w}, dword ptr [{p} + 16]",
+                    "pshufd {b}, {v}, 0xff",
+                    "movaps {t}, xmmword ptr [{w}]",
+                    "mulps {t}, {b}",
+                    "addps {a0}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 16]",
+                    "mulps {t}, {b}",
+                    "addps {a1}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 32]",
+                    "mulps {t}, {b}",
+                    "addps {a2}, {t}",
+                    "mulps {b}, xmmword ptr [{w} + 48]",
+                    "addps {a3}, {b}",
+                    "add {w}, dword ptr [{p} + 16]",
+                "add {x}, 16",
+                "dec {n}",
+                "jnz 2b",
+                "5:",
+                "mov {n}, dword ptr [{p} + 4]",
+                "test {n}, {n}",
+                "jz 6f",
+                "4:",
+                "movss {b}, dword ptr [{x}]",
+                "shufps {b}, {b}, 0",
+                    "movaps {t}, xmmword ptr [{w}]",
+                    "mulps {t}, {b}",
+                    "addps {a0}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 16]",
+                    "mulps {t}, {b}",
+                    "addps {a1}, {t}",
+                    "movaps {t}, xmmword ptr [{w} + 32]",
+                    "mulps {t}, {b}",
+                    "addps {a2}, {t}",
+                    "mulps {b}, xmmword ptr [{w} + 48]",
+                    "addps {a3}, {b}",
+                    "add {w}, dword ptr [{p} + 16]",
+                "add {x}, 4",
+                "dec {n}",
+                "jnz 4b",
+                "6:",
+                "add {x}, dword ptr [{p} + 8]",
+                "dec dword ptr [{p} + 12]",
+                "jnz 3b",
+                x = inout(reg) x => _,
+                w = inout(reg) w => _,
+                n = out(reg) _,
+                p = in(reg) counts.as_mut_ptr(),
+                a0 = inout(xmm_reg) a0,
+                a1 = inout(xmm_reg) a1,
+                a2 = inout(xmm_reg) a2,
+                a3 = inout(xmm_reg) a3,
+                v = out(xmm_reg) _,
+                b = out(xmm_reg) _,
+                t = out(xmm_reg) _,
+                options(nostack),
+            );
+        }
+        let _ = &mut counts;
+        *acc = [Self(a0), Self(a1), Self(a2), Self(a3)];
+        true
+    }
+
+    #[inline(always)]
+    unsafe fn splat4(values: *const f32) -> [Self; 4] {
+        // SAFETY: the caller's promise, and the baseline SSE (above).
+        unsafe {
+            let v = _mm_loadu_ps(values);
+            [
+                Self(_mm_shuffle_ps::<0x00>(v, v)),
+                Self(_mm_shuffle_ps::<0x55>(v, v)),
+                Self(_mm_shuffle_ps::<0xAA>(v, v)),
+                Self(_mm_shuffle_ps::<0xFF>(v, v)),
+            ]
+        }
+    }
 
     #[inline(always)]
     fn zero() -> Self {
@@ -66,12 +251,6 @@ impl Vector for Sse {
     fn load(values: &[f32]) -> Self {
         let values = &values[..4];
         Self(unsafe { _mm_loadu_ps(values.as_ptr()) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise, and the baseline SSE (above).
-        Self(unsafe { _mm_loadu_ps(values) })
     }
 
     #[inline(always)]
@@ -95,13 +274,6 @@ impl Vector for Sse {
     fn max(a: Self, b: Self) -> Self {
         Self(unsafe { _mm_max_ps(a.0, b.0) })
     }
-
-    #[inline(always)]
-    fn sum(self) -> f32 {
-        let mut lanes = [0.0f32; 4];
-        self.store(&mut lanes);
-        (lanes[0] + lanes[2]) + (lanes[1] + lanes[3])
-    }
 }
 
 /// Eight floats in an AVX register; multiply-add fused.
@@ -113,6 +285,13 @@ pub(crate) struct Avx(__m256);
 // has them; every load and store is checked to stay inside its slice first.
 impl Vector for Avx {
     const LANES: usize = 8;
+    const QUAD_BROADCAST: bool = false;
+
+    #[inline(always)]
+    unsafe fn splat4(values: *const f32) -> [Self; 4] {
+        // SAFETY: the caller's promise, and the AVX this is compiled with (above).
+        core::array::from_fn(|i| Self(unsafe { _mm256_broadcast_ss(&*values.add(i)) }))
+    }
 
     #[inline(always)]
     fn zero() -> Self {
@@ -128,12 +307,6 @@ impl Vector for Avx {
     fn load(values: &[f32]) -> Self {
         let values = &values[..8];
         Self(unsafe { _mm256_loadu_ps(values.as_ptr()) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise, and the AVX this is compiled with (above).
-        Self(unsafe { _mm256_loadu_ps(values) })
     }
 
     #[inline(always)]
@@ -158,13 +331,62 @@ impl Vector for Avx {
     fn max(a: Self, b: Self) -> Self {
         Self(unsafe { _mm256_max_ps(a.0, b.0) })
     }
+}
+
+/// Sixteen floats in an AVX-512 register; multiply-add fused.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Avx512(__m512);
+
+// SAFETY (all `unsafe` blocks of this impl): only inlined into `super::x86::run_avx512`,
+// compiled with AVX-512F (and AVX2 and FMA), which `CompiledNetwork::lower` selects only on a
+// CPU that has them; every load and store is checked to stay inside its slice first.
+impl Vector for Avx512 {
+    const LANES: usize = 16;
+    const QUAD_BROADCAST: bool = false;
 
     #[inline(always)]
-    fn sum(self) -> f32 {
-        let mut lanes = [0.0f32; 8];
-        self.store(&mut lanes);
-        ((lanes[0] + lanes[4]) + (lanes[1] + lanes[5]))
-            + ((lanes[2] + lanes[6]) + (lanes[3] + lanes[7]))
+    unsafe fn splat4(values: *const f32) -> [Self; 4] {
+        // SAFETY: the caller's promise.
+        core::array::from_fn(|i| Self::splat(unsafe { *values.add(i) }))
+    }
+
+    #[inline(always)]
+    fn zero() -> Self {
+        Self(unsafe { _mm512_setzero_ps() })
+    }
+
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        Self(unsafe { _mm512_set1_ps(x) })
+    }
+
+    #[inline(always)]
+    fn load(values: &[f32]) -> Self {
+        let values = &values[..16];
+        Self(unsafe { _mm512_loadu_ps(values.as_ptr()) })
+    }
+
+    #[inline(always)]
+    unsafe fn load_aligned_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise (alignment included), and the AVX-512 this is
+        // compiled with (above).
+        Self(unsafe { _mm512_load_ps(values) })
+    }
+
+    #[inline(always)]
+    fn store(self, values: &mut [f32]) {
+        let values = &mut values[..16];
+        unsafe { _mm512_storeu_ps(values.as_mut_ptr(), self.0) }
+    }
+
+    #[inline(always)]
+    fn mul_add(a: Self, b: Self, c: Self) -> Self {
+        Self(unsafe { _mm512_fmadd_ps(a.0, b.0, c.0) })
+    }
+
+    #[inline(always)]
+    fn max(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm512_max_ps(a.0, b.0) })
     }
 }
 
@@ -207,6 +429,17 @@ pub(crate) fn conv_rows<
         return false;
     }
     let [_, ow] = shape.out;
+    // Every block's inputs inside `padded`, checked once here rather than per kernel row.
+    let ([kh, kw], [sy, sx]) = (shape.kernel, shape.stride);
+    let row = shape.padded_width * shape.in_channels;
+    let rows = out.len() / (ow * oc).max(1);
+    if ow > 0
+        && rows > 0
+        && (((ow - 1) * sx + kw) * shape.in_channels > row
+            || ((first_row + rows - 1) * sy + kh) * row > padded.len())
+    {
+        return false;
+    }
     for (i, out_row) in out.chunks_exact_mut(ow * oc).enumerate() {
         let oy = first_row + i;
         for g in 0..oc / group {
@@ -275,33 +508,76 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize, const IC: usize, con
     let row = shape.padded_width * ic;
     let step = sx * ic;
     let mut acc = [*bias; P];
-    for ky in 0..kh {
-        let input_row = &padded[(oy * sy + ky) * row..(oy * sy + ky + 1) * row];
-        let taps_row = &weights[ky * kw * ic * oc..(ky + 1) * kw * ic * oc];
-        let first = ox * sx * ic;
-        let span = &input_row[first..first + (P - 1) * step + kw * ic];
-        // The slices are checked once here; the loop below reads inside them without a
-        // check per value, which on the V5 would cost more than the arithmetic.
-        let (taps, span) = (taps_row.as_ptr(), span.as_ptr());
+    let first = ox * sx * ic;
+    let whole_window = if P == 1
+        && let Ok(window) = <&mut [V; 4]>::try_from(acc[0].as_mut_slice())
+        // SAFETY: `conv_rows` checked that this pixel's window lies inside `padded`: kh rows
+        // of kw * ic consecutive inputs, `row` floats apart, from the first's offset (as
+        // below); the weights are [ky][kx][c][oc], so tap t of row ky (t = kx * ic + c) has
+        // its channels from weights + (ky * kw * ic + t) * oc + channels, on a LANES
+        // boundary, with VECS * LANES = 4 * LANES of them inside `weights`.
+        && unsafe {
+            V::window_of_taps4(
+                window,
+                padded.as_ptr().add(oy * sy * row + first),
+                row,
+                weights.as_ptr().add(channels),
+                [kh, kw * ic],
+                oc,
+            )
+        } {
+        true
+    } else {
+        false
+    };
+    for ky in (0..kh).filter(|_| !whole_window) {
+        // SAFETY: `conv_rows` checked that the inputs of every block it asks for lie inside
+        // `padded`: row oy * sy + ky < (last row * sy + kh) and columns from `first` to
+        // first + (P - 1) * step + kw * ic <= ((ow - 1) * sx + kw) * ic <= row; and that
+        // `weights` holds kh * kw * ic * oc values, so row ky's taps start inside it.
+        let span = unsafe { padded.as_ptr().add((oy * sy + ky) * row + first) };
+        let taps = unsafe { weights.as_ptr().add(ky * kw * ic * oc) };
         for kx in 0..kw {
-            for c in 0..ic {
+            if V::QUAD_BROADCAST && ic.is_multiple_of(4) {
+                // Four channels of each pixel in one load, broadcast lane by lane.
+                for c4 in (0..ic).step_by(4) {
+                    // SAFETY: as below, for the channels c4..c4 + 4 <= ic.
+                    let xs: [[V; 4]; P] = core::array::from_fn(|p| unsafe {
+                        V::splat4(span.add(p * step + kx * ic + c4))
+                    });
+                    for j in 0..4 {
+                        // SAFETY: as below, for channel c4 + j < ic.
+                        let w: [V; VECS] = core::array::from_fn(|v| unsafe {
+                            V::load_aligned_unchecked(
+                                taps.add((kx * ic + c4 + j) * oc + channels + v * V::LANES),
+                            )
+                        });
+                        for (acc, xs) in acc.iter_mut().zip(&xs) {
+                            for (acc, &w) in acc.iter_mut().zip(&w) {
+                                *acc = V::mul_add(xs[j], w, *acc);
+                            }
+                        }
+                    }
+                }
+                continue;
+            }
+            // Channels two at a time where they pair up (the loop's own instructions are a
+            // quarter of a 32-bit SSE tap's otherwise), one at a time elsewhere.
+            let pairs = if ic.is_multiple_of(2) { ic / 2 } else { 0 };
+            for pair in 0..pairs {
+                for c in [2 * pair, 2 * pair + 1] {
+                    // SAFETY: c < ic; as below.
+                    unsafe { conv_tap(&mut acc, taps, span, [kx, c], [ic, oc], step, channels) };
+                }
+            }
+            for c in 2 * pairs..ic {
                 // SAFETY: kx < kw, c < ic and channels + (v + 1) * LANES <= oc (`conv_rows`
                 // checks that the groups tile the channels), so the weight offset plus LANES
                 // stays inside `taps_row` (kw * ic * oc values); the offset is a multiple of
                 // LANES (oc and channels are) and `conv_rows` checked that `weights` starts on
                 // a LANES-float boundary, as `taps_row` does (ky * kw * ic * oc in); p < P, so
                 // p * step + kx * ic + c < (P - 1) * step + kw * ic, the length of `span`.
-                let w: [V; VECS] = core::array::from_fn(|v| unsafe {
-                    V::load_aligned_unchecked(
-                        taps.add((kx * ic + c) * oc + channels + v * V::LANES),
-                    )
-                });
-                for (p, acc) in acc.iter_mut().enumerate() {
-                    let x = V::splat(unsafe { *span.add(p * step + kx * ic + c) });
-                    for (acc, &w) in acc.iter_mut().zip(&w) {
-                        *acc = V::mul_add(x, w, *acc);
-                    }
-                }
+                unsafe { conv_tap(&mut acc, taps, span, [kx, c], [ic, oc], step, channels) };
             }
         }
     }
@@ -310,6 +586,35 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize, const IC: usize, con
         for (v, &a) in acc.iter().enumerate() {
             let value = if relu { V::max(a, zero) } else { a };
             value.store(&mut target[p * oc + channels + v * V::LANES..]);
+        }
+    }
+}
+
+/// One tap `(kx, c)` of a block: its `VECS` weight vectors times each pixel's input value.
+///
+/// # Safety
+/// `taps` must hold the row's weights `[kx][c][oc]` from a `LANES`-float boundary, with
+/// `channels + VECS * LANES <= oc`, and `span` the block's inputs, `(P - 1) * step + kw * ic`
+/// floats, for `kx < kw` and `c < ic`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // one tap of one block
+unsafe fn conv_tap<V: Vector, const VECS: usize, const P: usize>(
+    acc: &mut [[V; VECS]; P],
+    taps: *const f32,
+    span: *const f32,
+    [kx, c]: [usize; 2],
+    [ic, oc]: [usize; 2],
+    step: usize,
+    channels: usize,
+) {
+    // SAFETY: the caller's promise.
+    let w: [V; VECS] = core::array::from_fn(|v| unsafe {
+        V::load_aligned_unchecked(taps.add((kx * ic + c) * oc + channels + v * V::LANES))
+    });
+    for (p, acc) in acc.iter_mut().enumerate() {
+        let x = V::splat(unsafe { *span.add(p * step + kx * ic + c) });
+        for (acc, &w) in acc.iter_mut().zip(&w) {
+            *acc = V::mul_add(x, w, *acc);
         }
     }
 }
@@ -338,13 +643,22 @@ pub(crate) fn max_pool<V: Vector>(
             let (upper, lower) = rows.split_at(w * c);
             let pairs = upper.chunks_exact(2 * c).zip(lower.chunks_exact(2 * c));
             for (target, (upper, lower)) in out_row.chunks_exact_mut(c).zip(pairs) {
-                for channel in (0..c).step_by(V::LANES) {
-                    let left = V::max(V::load(&upper[channel..]), V::load(&lower[channel..]));
-                    let right = V::max(
-                        V::load(&upper[c + channel..]),
-                        V::load(&lower[c + channel..]),
+                // Whole vectors from slices of exactly one vector: no check per load.
+                let (upper_left, upper_right) = upper.split_at(c);
+                let (lower_left, lower_right) = lower.split_at(c);
+                let vectors = target
+                    .chunks_exact_mut(V::LANES)
+                    .zip(upper_left.chunks_exact(V::LANES))
+                    .zip(lower_left.chunks_exact(V::LANES))
+                    .zip(
+                        upper_right
+                            .chunks_exact(V::LANES)
+                            .zip(lower_right.chunks_exact(V::LANES)),
                     );
-                    V::max(left, right).store(&mut target[channel..]);
+                for (((target, ul), ll), (ur, lr)) in vectors {
+                    let left = V::max(V::load(ul), V::load(ll));
+                    let right = V::max(V::load(ur), V::load(lr));
+                    V::max(left, right).store(target);
                 }
             }
         }
@@ -370,50 +684,69 @@ pub(crate) fn max_pool<V: Vector>(
     }
 }
 
-/// [`super::kernels::dense`] over vectors: four rows at a time.
+/// [`super::kernels::dense`] over vectors: a panel's `VECS * LANES` outputs stay in
+/// registers while the non-zero inputs stream past, each broadcast once and multiplied by
+/// its row of the panel (aligned loads: panels start on a 64-byte boundary and their rows are
+/// a multiple of eight floats). Returns false (nothing written) when the panels are not
+/// `VECS` vectors wide or not aligned.
 #[inline(always)]
-pub(crate) fn dense<V: Vector>(x: &[f32], weights: &[f32], bias: &[f32], y: &mut [f32]) {
-    let k = x.len();
-    let whole = k - k % V::LANES;
-    let n = y.len();
-    let mut start = 0;
-    while start + 4 <= n {
-        let rows: [&[f32]; 4] =
-            core::array::from_fn(|r| &weights[(start + r) * k..(start + r + 1) * k]);
-        let mut acc = [V::zero(); 4];
-        let mut i = 0;
-        let pointers: [*const f32; 4] = core::array::from_fn(|r| rows[r].as_ptr());
-        while i < whole {
-            // SAFETY: i + LANES <= whole <= k, the length of `x` and of every row.
-            let xv = unsafe { V::load_unchecked(x.as_ptr().add(i)) };
-            let w: [V; 4] =
-                core::array::from_fn(|r| unsafe { V::load_unchecked(pointers[r].add(i)) });
-            for r in 0..4 {
-                acc[r] = V::mul_add(xv, w[r], acc[r]);
-            }
-            i += V::LANES;
-        }
-        for r in 0..4 {
-            let mut sum = acc[r].sum();
-            for j in whole..k {
-                sum += x[j] * rows[r][j];
-            }
-            y[start + r] = sum + bias[start + r];
-        }
-        start += 4;
+pub(crate) fn dense<V: Vector, const VECS: usize>(
+    x: &[f32],
+    weights: &DenseWeights,
+    bias: &[f32],
+    y: &mut [f32],
+    nonzero: &mut [u32],
+) -> bool {
+    let width = VECS * V::LANES;
+    let (k, outputs) = (weights.inputs(), weights.outputs());
+    let panels = weights.panels();
+    if weights.width() != width
+        || x.len() < k
+        || y.len() < outputs
+        || bias.len() < outputs
+        || panels.len() < outputs.div_ceil(width) * k * width
+        || !panels
+            .as_ptr()
+            .addr()
+            .is_multiple_of(V::LANES * size_of::<f32>())
+    {
+        return false;
     }
-    for row in start..n {
-        let w = &weights[row * k..(row + 1) * k];
-        let mut acc = V::zero();
-        let mut i = 0;
-        while i < whole {
-            acc = V::mul_add(V::load(&x[i..]), V::load(&w[i..]), acc);
-            i += V::LANES;
+    let x = &x[..k];
+    let count = nonzero_indices(x, nonzero);
+    let nonzero = &nonzero[..count];
+    for (panel, values) in panels.chunks_exact(k * width).enumerate() {
+        let first = panel * width;
+        if first >= outputs {
+            break;
         }
-        let mut sum = acc.sum();
-        for j in whole..k {
-            sum += x[j] * w[j];
+        let rows = values.as_ptr();
+        let mut acc = [V::zero(); VECS];
+        for &i in nonzero {
+            let i = i as usize;
+            // SAFETY: `nonzero_indices` wrote indices below `x.len()` = k, so `x[i]` is
+            // there and row i of the panel (`width` floats from `i * width`) lies inside
+            // `values` (k * width floats); it starts on a LANES boundary (checked above for
+            // `panels`; panel and row offsets are multiples of `width`, itself of LANES).
+            let value = V::splat(unsafe { *x.get_unchecked(i) });
+            let row = unsafe { rows.add(i * width) };
+            for (v, acc) in acc.iter_mut().enumerate() {
+                let w = unsafe { V::load_aligned_unchecked(row.add(v * V::LANES)) };
+                *acc = V::mul_add(value, w, *acc);
+            }
         }
-        y[row] = sum + bias[row];
+        for (v, acc) in acc.iter().enumerate() {
+            let start = first + v * V::LANES;
+            if start >= outputs {
+                break;
+            }
+            let mut lanes = [0.0f32; 16];
+            acc.store(&mut lanes);
+            let end = (start + V::LANES).min(outputs);
+            for ((t, &a), &b) in y[start..end].iter_mut().zip(&lanes).zip(&bias[start..end]) {
+                *t = a + b;
+            }
+        }
     }
+    true
 }
