@@ -84,13 +84,13 @@ impl Kernels for SseKernels {
         out: &mut [f32],
     ) {
         use super::simd::{Sse, conv_rows};
-        let (ic, kw, row) = (shape.in_channels, shape.kernel[1], first_row);
+        let (ic, row) = (shape.in_channels, first_row);
         // Accumulators, weight vectors and broadcast inputs in registers: sixteen on x86-64,
         // eight on the 32-bit build. Measured with callgrind (`cross/count`): one group of all
         // 32 channels beats two groups of 16 on both, as the inputs are then read once.
         // The first layer (one input channel) gets its inner loop unrolled.
         #[cfg(target_arch = "x86_64")]
-        let done = match (shape.out_channels, ic, kw) {
+        let done = match (shape.out_channels, ic, shape.kernel[1]) {
             (8, _, _) => conv_rows::<Sse, 2, 5, 0, 0>(shape, padded, weights, bias, relu, row, out),
             (16, 1, 5) => {
                 conv_rows::<Sse, 4, 2, 1, 5>(shape, padded, weights, bias, relu, row, out)
@@ -115,8 +115,6 @@ impl Kernels for SseKernels {
             (32, 16) => conv_rows::<Sse, 4, 1, 16, 0>(shape, padded, weights, bias, relu, row, out),
             _ => conv_rows::<Sse, 4, 1, 0, 0>(shape, padded, weights, bias, relu, row, out),
         };
-        #[cfg(target_arch = "x86")]
-        let _ = kw;
         if !done {
             Generic::<kernels::Separate>::conv(shape, padded, weights, bias, relu, row, out);
         }

@@ -112,6 +112,32 @@ impl Vector for Sse {
             rows,
             w_stride * size_of::<f32>(),
         ];
+        // One tap: the broadcast input in {b} times the tap's four weight vectors at {w},
+        // into the accumulators; then {w} moves to the next tap's weights.
+        macro_rules! tap {
+            () => {
+                concat!(
+                    "movaps {t}, xmmword ptr [{w}]\n",
+                    "mulps {t}, {b}\n",
+                    "addps {a0}, {t}\n",
+                    "movaps {t}, xmmword ptr [{w} + 16]\n",
+                    "mulps {t}, {b}\n",
+                    "addps {a1}, {t}\n",
+                    "movaps {t}, xmmword ptr [{w} + 32]\n",
+                    "mulps {t}, {b}\n",
+                    "addps {a2}, {t}\n",
+                    "mulps {b}, xmmword ptr [{w} + 48]\n",
+                    "addps {a3}, {b}\n",
+                    "add {w}, dword ptr [{p} + 16]\n",
+                )
+            };
+        }
+        // Lane `$lane` of the four inputs in {v}, broadcast, as one tap.
+        macro_rules! quad_tap {
+            ($lane:literal) => {
+                concat!("pshufd {b}, {v}, ", $lane, "\n", tap!())
+            };
+        }
         // SAFETY: the caller's promise: the loops read, row by row, the row's inputs and,
         // tap by tap, four aligned vectors of the tap's weights, in order; they write only
         // `counts`' rows-left field.
@@ -123,58 +149,10 @@ impl Vector for Sse {
                 "jz 5f",
                 "2:",
                 "movups {v}, xmmword ptr [{x}]",
-                    "pshufd {b}, {v}, 0x00",
-                    "movaps {t}, xmmword ptr [{w}]",
-                    "mulps {t}, {b}",
-                    "addps {a0}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 16]",
-                    "mulps {t}, {b}",
-                    "addps {a1}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 32]",
-                    "mulps {t}, {b}",
-                    "addps {a2}, {t}",
-                    "mulps {b}, xmmword ptr [{w} + 48]",
-                    "addps {a3}, {b}",
-                    "add {w}, dword ptr [{p} + 16]",
-                    "pshufd {b}, {v}, 0x55",
-                    "movaps {t}, xmmword ptr [{w}]",
-                    "mulps {t}, {b}",
-                    "addps {a0}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 16]",
-                    "mulps {t}, {b}",
-                    "addps {a1}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 32]",
-                    "mulps {t}, {b}",
-                    "addps {a2}, {t}",
-                    "mulps {b}, xmmword ptr [{w} + 48]",
-                    "addps {a3}, {b}",
-                    "add {w}, dword ptr [{p} + 16]",
-                    "pshufd {b}, {v}, 0xaa",
-                    "movaps {t}, xmmword ptr [{w}]",
-                    "mulps {t}, {b}",
-                    "addps {a0}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 16]",
-                    "mulps {t}, {b}",
-                    "addps {a1}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 32]",
-                    "mulps {t}, {b}",
-                    "addps {a2}, {t}",
-                    "mulps {b}, xmmword ptr [{w} + 48]",
-                    "addps {a3}, {b}",
-                    "add {w}, dword ptr [{p} + 16]",
-                    "pshufd {b}, {v}, 0xff",
-                    "movaps {t}, xmmword ptr [{w}]",
-                    "mulps {t}, {b}",
-                    "addps {a0}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 16]",
-                    "mulps {t}, {b}",
-                    "addps {a1}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 32]",
-                    "mulps {t}, {b}",
-                    "addps {a2}, {t}",
-                    "mulps {b}, xmmword ptr [{w} + 48]",
-                    "addps {a3}, {b}",
-                    "add {w}, dword ptr [{p} + 16]",
+                quad_tap!("0x00"),
+                quad_tap!("0x55"),
+                quad_tap!("0xaa"),
+                quad_tap!("0xff"),
                 "add {x}, 16",
                 "dec {n}",
                 "jnz 2b",
@@ -185,18 +163,7 @@ impl Vector for Sse {
                 "4:",
                 "movss {b}, dword ptr [{x}]",
                 "shufps {b}, {b}, 0",
-                    "movaps {t}, xmmword ptr [{w}]",
-                    "mulps {t}, {b}",
-                    "addps {a0}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 16]",
-                    "mulps {t}, {b}",
-                    "addps {a1}, {t}",
-                    "movaps {t}, xmmword ptr [{w} + 32]",
-                    "mulps {t}, {b}",
-                    "addps {a2}, {t}",
-                    "mulps {b}, xmmword ptr [{w} + 48]",
-                    "addps {a3}, {b}",
-                    "add {w}, dword ptr [{p} + 16]",
+                tap!(),
                 "add {x}, 4",
                 "dec {n}",
                 "jnz 4b",
@@ -218,7 +185,6 @@ impl Vector for Sse {
                 options(nostack),
             );
         }
-        let _ = &mut counts;
         *acc = [Self(a0), Self(a1), Self(a2), Self(a3)];
         true
     }
