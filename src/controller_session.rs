@@ -181,25 +181,26 @@ fn open_process(
             )
         })?;
     if link.owns_controller() {
-        println!(
-            "controller: started {} (pid {}, domain {}, log {})",
-            binary.display(),
-            link.controller_pid().unwrap_or(-1),
-            domain.label(),
-            options.controller_log.display()
+        tracing::info!(
+            event = "controller_started",
+            binary = %binary.display(),
+            pid = link.controller_pid().unwrap_or(-1),
+            domain = %domain.label(),
+            log = %options.controller_log.display(),
         );
     } else {
-        println!(
-            "controller: using the one already running in domain {} (pid {}); its policy is its own",
-            domain.label(),
-            link.controller_pid().unwrap_or(-1)
+        tracing::info!(
+            event = "controller_joined",
+            domain = %domain.label(),
+            pid = link.controller_pid().unwrap_or(-1),
+            note = "the controller already running in the domain drives with its own policy",
         );
     }
     if link.cleaned_dead_nodes() > 0 {
-        println!(
-            "iceoryx2: cleaned up after {} dead process(es) in domain {}",
-            link.cleaned_dead_nodes(),
-            domain.label()
+        tracing::info!(
+            event = "iceoryx2_cleaned",
+            dead_processes = link.cleaned_dead_nodes(),
+            domain = %domain.label(),
         );
     }
     Ok(ControllerSession::Process(Box::new(link)))

@@ -15,14 +15,16 @@ use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::tick_stats::TickStats;
 use dribble_sim::dataset::Outcome;
 use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::render::Renderer;
-use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, run_episode};
+use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, run_episode_observed};
 use serde_json::json;
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
+use crate::foxglove_episodes::FoxgloveArgs;
 use crate::trajectory_plot::plot_trajectories;
 
 #[derive(Debug, Args)]
@@ -48,6 +50,8 @@ pub struct EvalArgs {
     time_limit: f32,
     #[command(flatten)]
     controller: ControllerOptions,
+    #[command(flatten)]
+    foxglove: FoxgloveArgs,
 }
 
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
@@ -97,17 +101,24 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     if policy_path.is_some() {
         args.controller.start_log()?;
     }
+    let mut foxglove = args.foxglove.observer(renderer.is_some())?;
     for seed in args.episodes.0.clone() {
         let setup = EpisodeSetup::from_seed(seed);
+        let mut no_observer = NoObserver;
+        let observer: &mut dyn EpisodeObserver = match foxglove.as_mut() {
+            Some(foxglove) => foxglove,
+            None => &mut no_observer,
+        };
         let result = match &policy_path {
             None => {
                 let expert = Expert::new(ExpertConfig::default(), FieldGeometry::SPL);
-                run_episode(
+                run_episode_observed(
                     &setup,
                     &config,
                     Driver::Expert(expert),
                     renderer.as_mut(),
                     None,
+                    observer,
                 )
             }
             Some(path) => {
@@ -120,10 +131,13 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 }
                 let link = session.as_mut().map(ControllerSession::link);
                 let driver = Driver::Controller(link.context("no controller session")?);
-                run_episode(&setup, &config, driver, renderer.as_mut(), None)
+                run_episode_observed(&setup, &config, driver, renderer.as_mut(), None, observer)
             }
         }
         .with_context(|| format!("episode {seed}"))?;
+        if let Some(failure) = foxglove.as_mut().and_then(|f| f.take_failure()) {
+            return Err(failure.context(format!("episode {seed}: writing it for Foxglove")));
+        }
         println!(
             "{:>6}  {:<15}  {:>9.1}  {:>9.2}  {:>8}",
             seed,
@@ -168,14 +182,30 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         };
         println!("{what}: {summary}");
     }
-    let driver_name = if policy_path.is_some() {
-        "POLICY"
-    } else {
-        "EXPERT"
+    let driver_name = match &policy_path {
+        Some(path) => format!("policy {}", path.display()),
+        None => "the scripted expert".to_owned(),
     };
-    let title = format!("{driver_name}: {} OF {} GOALS", goals.len(), results.len());
+    let seeds = match (results.first(), results.last()) {
+        (Some(first), Some(last)) => {
+            format!(", seeds {}..{}", first.setup.seed, last.setup.seed)
+        }
+        _ => String::new(),
+    };
+    let title = format!(
+        "{driver_name}: {} of {} goals{seeds}",
+        goals.len(),
+        results.len()
+    );
     plot_trajectories(&results, &title, &args.plot)?;
     println!("trajectory plot: {}", args.plot.display());
+    if let (Some(foxglove), Some(dir)) = (&foxglove, &args.foxglove.mcap) {
+        println!(
+            "mcap: {} episode file(s) in {} (open in Foxglove with sim-harness/foxglove-layout.json)",
+            foxglove.written().len(),
+            dir.display()
+        );
+    }
     if let Some(path) = &args.trajectories {
         write_trajectories(&results, path)?;
         println!("trajectories: {}", path.display());

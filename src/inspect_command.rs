@@ -14,10 +14,11 @@ use dribble_sim::dataset::{DatasetIndex, NpyArray, read_npz};
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::expert::Phase;
 use dribble_sim::field::FieldGeometry;
-use dribble_sim::image_output::RgbImage;
 use dribble_sim::pose::FieldPose;
-use dribble_sim::text::line_height;
 use dribble_sim::visibility::{Visibility, VisibilityShares};
+use plotters::prelude::*;
+
+use crate::plot_image::{FONT, Label, draw_png};
 
 #[derive(Debug, Args)]
 pub struct InspectArgs {
@@ -43,9 +44,8 @@ pub struct InspectArgs {
 const SWEEP_DEG: [f32; 10] = [-10.0, -5.0, 0.0, 5.0, 10.0, 15.0, 18.0, 21.0, 25.0, 29.5];
 
 const BINS: usize = 20;
-const BACKGROUND: [u8; 3] = [250, 250, 250];
-const INK: [u8; 3] = [20, 20, 20];
-const BAR: [u8; 3] = [31, 119, 180];
+const INK: RGBColor = RGBColor(20, 20, 20);
+const BAR: RGBColor = RGBColor(31, 119, 180);
 
 /// A sampled row for the contact sheet.
 struct Sample {
@@ -329,101 +329,126 @@ fn check_shapes(
     Ok(())
 }
 
-/// Four bar charts: forward, left, turn (20 bins over -1..1) and the phases.
+/// Four bar charts: forward, left, turn (20 bins over -1..1) and the phases, rows on the
+/// vertical axis.
 fn draw_histograms(
     commands: &[[u64; BINS]; 3],
     phases: &[u64; 4],
     path: &Path,
 ) -> anyhow::Result<()> {
-    let (panel_width, panel_height) = (300i64, 240i64);
-    let mut image = RgbImage::filled(4 * panel_width as u32, panel_height as u32, BACKGROUND);
-    let scale = 2;
-    let label = line_height(scale) as i64;
-    let panels: [(&str, Vec<u64>, [&str; 2]); 4] = [
-        ("FORWARD", commands[0].to_vec(), ["-1", "+1"]),
-        ("LEFT", commands[1].to_vec(), ["-1", "+1"]),
-        ("TURN", commands[2].to_vec(), ["-1", "+1"]),
-        ("PHASE", phases.to_vec(), ["S A", "L D"]),
-    ];
-    for (p, (title, counts, ends)) in panels.iter().enumerate() {
-        let left = p as i64 * panel_width + 20;
-        let (plot_top, plot_bottom) = (label + 14, panel_height - label - 6);
-        let width = panel_width - 40;
-        let max = counts.iter().copied().max().unwrap_or(0).max(1);
-        image.text(left, 4, title, scale, INK);
-        image.text(
-            left + width - dribble_sim::text::text_width(&max.to_string(), 1) as i64,
-            6,
-            &max.to_string(),
-            1,
-            INK,
-        );
-        let bar_width = width / counts.len() as i64;
-        for (i, &count) in counts.iter().enumerate() {
-            let height = (count as f64 / max as f64 * (plot_bottom - plot_top) as f64) as i64;
-            image.fill_rect(
-                left + i as i64 * bar_width + 1,
-                plot_bottom - height,
-                bar_width - 2,
-                height,
-                BAR,
+    draw_png(path, (1400, 360), |root| {
+        root.fill(&WHITE)?;
+        let panels = root.split_evenly((1, 4));
+        let titles = [
+            "forward speed (normalised)",
+            "sideways speed (normalised, + left)",
+            "turn speed (normalised, + left)",
+        ];
+        for ((panel, counts), title) in panels.iter().zip(commands).zip(titles) {
+            let max = counts.iter().copied().max().unwrap_or(0).max(1);
+            let mut chart = ChartBuilder::on(panel)
+                .margin(10)
+                .caption(title, (FONT, 17))
+                .x_label_area_size(36)
+                .y_label_area_size(56)
+                .build_cartesian_2d(-1.0f32..1.0f32, 0u64..max + max / 10)?;
+            chart
+                .configure_mesh()
+                .disable_x_mesh()
+                .light_line_style(TRANSPARENT)
+                .x_desc("command")
+                .y_desc("rows")
+                .x_labels(5)
+                .label_style((FONT, 13))
+                .axis_desc_style((FONT, 14))
+                .draw()?;
+            let width = 2.0 / BINS as f32;
+            chart.draw_series(counts.iter().enumerate().map(|(i, &count)| {
+                let left = -1.0 + i as f32 * width;
+                Rectangle::new(
+                    [(left + 0.1 * width, 0), (left + 0.9 * width, count)],
+                    BAR.filled(),
+                )
+            }))?;
+        }
+        let max = phases.iter().copied().max().unwrap_or(0).max(1);
+        let mut chart = ChartBuilder::on(&panels[3])
+            .margin(10)
+            .caption("expert phase", (FONT, 17))
+            .x_label_area_size(36)
+            .y_label_area_size(56)
+            // A segmented axis over 0..=3: one segment per phase.
+            .build_cartesian_2d(
+                (0..Phase::ALL.len() - 1).into_segmented(),
+                0u64..max + max / 10,
+            )?;
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .light_line_style(TRANSPARENT)
+            .y_desc("rows")
+            .x_label_formatter(&|value| match value {
+                SegmentValue::CenterOf(i) => Phase::ALL.get(*i).map_or("", |p| p.name()).into(),
+                _ => String::new(),
+            })
+            .label_style((FONT, 13))
+            .axis_desc_style((FONT, 14))
+            .draw()?;
+        chart.draw_series(phases.iter().enumerate().map(|(i, &count)| {
+            let mut bar = Rectangle::new(
+                [
+                    (SegmentValue::Exact(i), 0),
+                    (SegmentValue::Exact(i + 1), count),
+                ],
+                BAR.filled(),
             );
-        }
-        image.fill_rect(left, plot_bottom, width, 1, INK);
-        if *title == "PHASE" {
-            for (i, phase) in Phase::ALL.iter().enumerate() {
-                let name = &phase.name()[..3];
-                image.text(
-                    left + i as i64 * bar_width + 4,
-                    plot_bottom + 4,
-                    name,
-                    2,
-                    INK,
-                );
-            }
-        } else {
-            image.text(left, plot_bottom + 4, ends[0], scale, INK);
-            image.text(left + width / 2 - 6, plot_bottom + 4, "0", scale, INK);
-            image.text(left + width - 24, plot_bottom + 4, ends[1], scale, INK);
-        }
-    }
-    image.save_png(path)?;
-    Ok(())
+            bar.set_margin(0, 0, 12, 12);
+            bar
+        }))?;
+        Ok(())
+    })
 }
 
-/// Sample rows: the top thumbnail, the bottom one beside it, and a label
-/// `seed/row phase forward left turn`.
+/// Sample rows: the top thumbnail, the bottom one beside it, and the labels
+/// `seed/row phase` and the expert's command.
 fn draw_contact_sheet(samples: &[Sample], path: &Path) -> anyhow::Result<()> {
-    let (cell_width, cell_height) = (250i64, 150i64);
+    let (cell_width, cell_height) = (250i32, 164i32);
     let columns = 4;
-    let rows = samples.len().div_ceil(columns).max(1) as i64;
-    let mut image = RgbImage::filled(
-        (columns as i64 * cell_width) as u32,
+    let rows = samples.len().div_ceil(columns).max(1) as i32;
+    let size = (
+        (columns as i32 * cell_width) as u32,
         (rows * cell_height) as u32,
-        BACKGROUND,
     );
-    for (i, sample) in samples.iter().enumerate() {
-        let x = (i % columns) as i64 * cell_width + 4;
-        let y = (i / columns) as i64 * cell_height + 4;
-        for (j, &p) in sample.top.iter().enumerate() {
-            image.put(x + (j % 160) as i64, y + (j / 160) as i64, [p, p, p]);
+    draw_png(path, size, |root| {
+        root.fill(&RGBColor(250, 250, 250))?;
+        for (i, sample) in samples.iter().enumerate() {
+            let x = (i % columns) as i32 * cell_width + 4;
+            let y = (i / columns) as i32 * cell_height + 4;
+            for (j, &p) in sample.top.iter().enumerate() {
+                let (column, row) = ((j % 160) as i32, (j / 160) as i32);
+                root.draw_pixel((x + column, y + row), &RGBColor(p, p, p))?;
+            }
+            for (j, &p) in sample.bottom.iter().enumerate() {
+                let (column, row) = ((j % 80) as i32, (j / 80) as i32);
+                root.draw_pixel((x + 164 + column, y + row), &RGBColor(p, p, p))?;
+            }
+            let phase = Phase::ALL
+                .get(usize::from(sample.phase))
+                .map_or("?", |p| p.name());
+            let [f, l, t] = sample.command;
+            root.draw(&Label::new(
+                format!("seed {} row {}: {phase}", sample.seed, sample.row),
+                (x, y + 123),
+                13.0,
+                INK,
+            ))?;
+            root.draw(&Label::new(
+                format!("fwd {f:+.2}  left {l:+.2}  turn {t:+.2}"),
+                (x, y + 139),
+                13.0,
+                INK,
+            ))?;
         }
-        for (j, &p) in sample.bottom.iter().enumerate() {
-            image.put(x + 164 + (j % 80) as i64, y + (j / 80) as i64, [p, p, p]);
-        }
-        let phase = Phase::ALL
-            .get(usize::from(sample.phase))
-            .map_or("?", |p| p.name());
-        image.text(
-            x,
-            y + 124,
-            &format!("{}/{} {}", sample.seed, sample.row, phase),
-            1,
-            INK,
-        );
-        let [f, l, t] = sample.command;
-        image.text(x, y + 134, &format!("F{f:+.2} L{l:+.2} T{t:+.2}"), 1, INK);
-    }
-    image.save_png(path)?;
-    Ok(())
+        Ok(())
+    })
 }

@@ -4,7 +4,9 @@
 mod controller_session;
 mod episodes;
 mod eval_command;
+mod foxglove_episodes;
 mod inspect_command;
+mod plot_image;
 mod record_command;
 mod render_command;
 mod score_command;
@@ -14,11 +16,17 @@ mod thumbnail_command;
 mod trajectory_plot;
 
 use clap::{Parser, Subcommand};
+use dribble_controller::log_output::{self, LogFormat};
 
 /// dribble: end-to-end imitation learning for RoboCup SPL soccer on the Nao.
 #[derive(Debug, Parser)]
 #[command(version, about, long_about = None)]
 struct Cli {
+    /// How events (a controller started or joined, a refused real-time setting, a network
+    /// the compiled engine cannot run) are logged on standard error: `logfmt` or `json`.
+    /// `RUST_LOG` filters them (default `info`). Results go to standard output.
+    #[arg(long, default_value = "logfmt", global = true)]
+    log_format: LogFormat,
     #[command(subcommand)]
     command: Command,
 }
@@ -56,7 +64,9 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    log_output::install(cli.log_format)?;
+    match cli.command {
         Command::Thumbnail(args) => thumbnail_command::run(&args),
         Command::Render(args) => render_command::run(&args),
         Command::Eval(args) => eval_command::run(&args),

@@ -10,14 +10,16 @@ use clap::{Args, ValueEnum};
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_sim::dataset::{DatasetIndex, EpisodeEntry, EpisodeRecording, episode_file};
 use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::render::Renderer;
-use dribble_sim::runner::{Driver, EpisodeConfig, ExpertLabels, run_episode};
+use dribble_sim::runner::{Driver, EpisodeConfig, ExpertLabels, run_episode_observed};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
+use crate::foxglove_episodes::FoxgloveArgs;
 
 /// Who labels the states a learned policy visits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -51,6 +53,8 @@ pub struct RecordArgs {
     beta: f64,
     #[command(flatten)]
     controller: ControllerOptions,
+    #[command(flatten)]
+    foxglove: FoxgloveArgs,
 }
 
 pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
@@ -143,6 +147,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     if policy.is_some() && !todo.is_empty() {
         args.controller.start_log()?;
     }
+    let mut foxglove = args.foxglove.observer(true)?;
     for seed in todo.iter().copied() {
         progress.set_message(format!("seed {seed}"));
         let setup = EpisodeSetup::from_seed(seed);
@@ -164,14 +169,23 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
                 Driver::LabelledController(link, Box::new(labels))
             }
         };
-        let result = run_episode(
+        let mut no_observer = NoObserver;
+        let observer: &mut dyn EpisodeObserver = match foxglove.as_mut() {
+            Some(foxglove) => foxglove,
+            None => &mut no_observer,
+        };
+        let result = run_episode_observed(
             &setup,
             &config,
             driver,
             Some(&mut renderer),
             Some(&mut recording),
+            observer,
         )
         .with_context(|| format!("episode {seed}"))?;
+        if let Some(failure) = foxglove.as_mut().and_then(|f| f.take_failure()) {
+            return Err(failure.context(format!("episode {seed}: writing it for Foxglove")));
+        }
         if let Some(failure) = &result.failure {
             // Nothing of a failed episode is kept; the episodes before it are.
             if let Some(session) = session.take() {

@@ -359,7 +359,7 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         report.in_force_text()
     );
     for refusal in &report.refused {
-        println!("soak: warning: {refusal}");
+        tracing::warn!(event = "realtime_refused", setting = %refusal, action = "the soak runs on without it");
     }
 
     let config = LoopConfig::default();

@@ -17,6 +17,8 @@ use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use dribble_controller::{MotionCommand, Timestamp};
+use time::OffsetDateTime;
+use time::format_description::well_known::Rfc3339;
 
 /// How long the cameras pause, and the publisher stays away.
 const PAUSE: Duration = Duration::from_secs(1);
@@ -312,16 +314,17 @@ fn wall_clock_s() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
-/// Whether the log has `event` on a line stamped (`ts=`) at or after `wall_s` (less the log's
-/// millisecond rounding).
+/// Whether the log has `event` on a line stamped (`ts=`, RFC 3339) at or after `wall_s`.
 fn logged_after(log: &str, event: &str, wall_s: f64) -> bool {
     log.lines().any(|line| {
         line.contains(event)
             && line
                 .strip_prefix("ts=")
                 .and_then(|rest| rest.split_whitespace().next())
-                .and_then(|ts| ts.parse::<f64>().ok())
-                .is_some_and(|ts| ts >= wall_s - 0.001)
+                .and_then(|ts| OffsetDateTime::parse(ts, &Rfc3339).ok())
+                .is_some_and(|ts| {
+                    (ts - OffsetDateTime::UNIX_EPOCH).as_seconds_f64() >= wall_s - 0.000_001
+                })
     })
 }
 
@@ -331,10 +334,12 @@ mod tests {
 
     #[test]
     fn only_events_after_the_fault_count() {
-        let log = "ts=100.000 level=info event=cameras_back\nts=200.500 level=warn event=policy_file_changed path=x\n";
+        let log = "ts=1970-01-01T00:01:40.000000Z level=info event=cameras_back\n\
+                   ts=1970-01-01T00:03:20.5Z level=warn event=policy_file_changed path=x\n";
         assert!(logged_after(log, "event=cameras_back", 99.0));
         assert!(!logged_after(log, "event=cameras_back", 150.0));
-        assert!(logged_after(log, "event=policy_file_changed", 200.5004));
+        assert!(logged_after(log, "event=policy_file_changed", 200.4999));
+        assert!(!logged_after(log, "event=policy_file_changed", 200.5001));
         assert!(!logged_after(log, "event=camera_resynced", 0.0));
     }
 }

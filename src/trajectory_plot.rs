@@ -1,81 +1,244 @@
-//! The paper's trajectory figure: every episode's robot and ball paths on the field, with
-//! a legend of seeds and outcomes below.
+//! The paper's trajectory figure, drawn with `plotters`: the field to scale (its lines, goals
+//! and border) with axes in metres, every episode's robot path (thin) and ball path (thick)
+//! in its colour, the robot's start pose (a disc with a heading line), the ball's start (a
+//! ring) and its end (a disc, a large one for a goal), and a legend of seed, outcome and time.
 
+use std::f32::consts::TAU;
 use std::path::Path;
 
 use dribble_sim::dataset::Outcome;
 use dribble_sim::field::FieldGeometry;
-use dribble_sim::image_output::RgbImage;
 use dribble_sim::runner::EpisodeResult;
-use dribble_sim::text::line_height;
-use dribble_sim::top_view::FieldCanvas;
+use glam::Vec2;
+use plotters::prelude::*;
 
-/// Distinct colours for episodes, in turn.
-const PALETTE: [[u8; 3]; 10] = [
-    [31, 119, 180],
-    [214, 39, 40],
-    [148, 103, 189],
-    [23, 190, 207],
-    [255, 127, 14],
-    [227, 119, 194],
-    [140, 86, 75],
-    [188, 189, 34],
-    [30, 30, 30],
-    [255, 255, 255],
+use crate::plot_image::{FONT, Label, draw_png};
+
+/// Distinct colours for episodes, in turn (matplotlib's tab10, white swapped for black).
+const PALETTE: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(23, 190, 207),
+    RGBColor(255, 127, 14),
+    RGBColor(227, 119, 194),
+    RGBColor(140, 86, 75),
+    RGBColor(188, 189, 34),
+    RGBColor(30, 30, 30),
+    RGBColor(255, 255, 255),
 ];
-const BACKGROUND: [u8; 3] = [250, 250, 250];
-const INK: [u8; 3] = [20, 20, 20];
+const CARPET: RGBColor = RGBColor(60, 140, 70);
+const LINE: RGBColor = RGBColor(240, 240, 240);
+const GOAL: RGBColor = RGBColor(250, 220, 40);
+const INK: RGBColor = RGBColor(20, 20, 20);
 
-/// Draws each episode in its colour: the robot's path thin, the ball's path thick, the
-/// robot's start as a disc with a heading tick, the ball's start as a ring, and the ball's
-/// end as a disc (a large one for a goal). `title` goes above the legend.
+/// Pixels per metre of field.
+const SCALE: f32 = 80.0;
+/// Space around the field's plot: margin, axis label areas, legend rows.
+const MARGIN: u32 = 12;
+const Y_LABELS: u32 = 60;
+const X_LABELS: u32 = 50;
+const TITLE_HEIGHT: u32 = 34;
+const LEGEND_ROW: u32 = 24;
+const LEGEND_COLUMNS: usize = 4;
+
+fn colour(i: usize) -> RGBColor {
+    PALETTE[i % PALETTE.len()]
+}
+
+/// The legend's text for one episode.
+fn label(result: &EpisodeResult) -> String {
+    match result.outcome {
+        Outcome::Goal => format!(
+            "seed {}: goal in {:.0} s",
+            result.setup.seed, result.duration_s
+        ),
+        other => format!(
+            "seed {}: {} ({:.0} s)",
+            result.setup.seed,
+            other.name().replace('_', " "),
+            result.duration_s
+        ),
+    }
+}
+
+/// Points around a circle, closed.
+fn ring(centre: Vec2, radius: f32) -> Vec<(f32, f32)> {
+    (0..=48)
+        .map(|i| {
+            let angle = i as f32 / 48.0 * TAU;
+            (
+                centre.x + radius * angle.cos(),
+                centre.y + radius * angle.sin(),
+            )
+        })
+        .collect()
+}
+
+/// Writes the figure for `results` to `path` (PNG), `title` above the field.
 pub fn plot_trajectories(
     results: &[EpisodeResult],
     title: &str,
     path: &Path,
 ) -> anyhow::Result<()> {
     let field = FieldGeometry::SPL;
-    let mut canvas = FieldCanvas::new(&field, 80.0);
-    for (i, result) in results.iter().enumerate() {
-        let colour = PALETTE[i % PALETTE.len()];
-        canvas.path(&result.robot_path, 0.02, colour);
-        canvas.path(&result.ball_path, 0.05, colour);
-        canvas.robot(result.setup.robot, colour);
-        canvas.circle(result.setup.ball, 0.09, 0.03, colour);
-        if let Some(end) = result.ball_path.last() {
-            let radius = if result.outcome == Outcome::Goal {
-                0.12
-            } else {
-                0.06
-            };
-            canvas.disc(*end, radius, colour);
+    let half = Vec2::new(
+        field.length / 2.0 + field.border,
+        field.width / 2.0 + field.border,
+    );
+    let plot_width = (2.0 * half.x * SCALE).round() as u32;
+    let plot_height = (2.0 * half.y * SCALE).round() as u32;
+    // One row for the key to the marks, then the episodes.
+    let legend_rows = 1 + results.len().div_ceil(LEGEND_COLUMNS) as u32;
+    let chart_height = plot_height + X_LABELS + 2 * MARGIN;
+    let size = (
+        plot_width + Y_LABELS + 2 * MARGIN,
+        TITLE_HEIGHT + chart_height + legend_rows * LEGEND_ROW + MARGIN,
+    );
+    draw_png(path, size, |root| {
+        root.fill(&WHITE)?;
+        let (title_area, rest) = root.split_vertically(TITLE_HEIGHT);
+        title_area.draw(&Label::new(title, (MARGIN as i32, 8), 22.0, INK).bold())?;
+        // The plot area is exactly the field's pixels, so metres are square.
+        let (upper, legend) = rest.split_vertically(chart_height);
+        let mut chart = ChartBuilder::on(&upper)
+            .margin(MARGIN)
+            .x_label_area_size(X_LABELS)
+            .y_label_area_size(Y_LABELS)
+            .build_cartesian_2d(-half.x..half.x, -half.y..half.y)?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc("x (m)")
+            .y_desc("y (m)")
+            .x_labels(12)
+            .y_labels(9)
+            .label_style((FONT, 15))
+            .axis_desc_style((FONT, 17))
+            .draw()?;
+        draw_field(&mut chart, &field, half)?;
+        for (i, result) in results.iter().enumerate() {
+            draw_episode(&mut chart, result, colour(i))?;
+        }
+
+        legend.draw(&Label::new(
+            "thin: robot path, thick: ball path; disc and tick: robot start and heading; \
+             ring: ball start; dot: ball end (large: goal)",
+            (MARGIN as i32, 2),
+            14.0,
+            RGBColor(90, 90, 90),
+        ))?;
+        let column_width = (size.0 - 2 * MARGIN) as i32 / LEGEND_COLUMNS as i32;
+        for (i, result) in results.iter().enumerate() {
+            let x = MARGIN as i32 + (i % LEGEND_COLUMNS) as i32 * column_width;
+            let y = (1 + i / LEGEND_COLUMNS) as i32 * LEGEND_ROW as i32 + 4;
+            legend.draw(&Rectangle::new([(x, y), (x + 14, y + 14)], INK.filled()))?;
+            legend.draw(&Rectangle::new(
+                [(x + 1, y + 1), (x + 13, y + 13)],
+                colour(i).filled(),
+            ))?;
+            legend.draw(&Label::new(label(result), (x + 20, y - 1), 15.0, INK))?;
+        }
+        Ok(())
+    })
+}
+
+type FieldChart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf32, plotters::coord::types::RangedCoordf32>,
+>;
+
+/// Carpet, lines (boundary, centre line and circle, goal and penalty areas) and goals.
+fn draw_field(
+    chart: &mut FieldChart<'_, '_>,
+    field: &FieldGeometry,
+    half: Vec2,
+) -> anyhow::Result<()> {
+    let (hl, hw) = (field.length / 2.0, field.width / 2.0);
+    chart.draw_series([Rectangle::new(
+        [(-half.x, -half.y), (half.x, half.y)],
+        CARPET.filled(),
+    )])?;
+    let line = LINE.stroke_width(2);
+    let mut lines: Vec<Vec<(f32, f32)>> = vec![
+        vec![(-hl, -hw), (hl, -hw), (hl, hw), (-hl, hw), (-hl, -hw)],
+        vec![(0.0, -hw), (0.0, hw)],
+        ring(Vec2::ZERO, field.centre_circle_diameter / 2.0),
+    ];
+    for side in [-1.0f32, 1.0] {
+        // Penalty area (1.65 m deep, 4 m wide) and goal area (0.6 m by 2.2 m).
+        for (depth, half_width) in [(1.65, 2.0), (0.6, 1.1)] {
+            let front = side * (hl - depth);
+            lines.push(vec![
+                (side * hl, -half_width),
+                (front, -half_width),
+                (front, half_width),
+                (side * hl, half_width),
+            ]);
         }
     }
-    let field_image = canvas.into_image();
-    let scale = 2;
-    let row = line_height(scale) as u32;
-    let columns = 4;
-    let legend_rows = results.len().div_ceil(columns) as u32;
-    let mut image = RgbImage::filled(
-        field_image.width,
-        field_image.height + row * (legend_rows + 2) + 8,
-        BACKGROUND,
-    );
-    image.pixels[..field_image.pixels.len()].copy_from_slice(&field_image.pixels);
-    let top = i64::from(field_image.height) + 6;
-    image.text(8, top, title, scale, INK);
-    let column_width = i64::from(image.width) / columns as i64;
-    for (i, result) in results.iter().enumerate() {
-        let x = 8 + (i % columns) as i64 * column_width;
-        let y = top + i64::from(row) * (1 + (i / columns) as i64);
-        image.fill_rect(x, y, 14, 14, INK);
-        image.fill_rect(x + 1, y + 1, 12, 12, PALETTE[i % PALETTE.len()]);
-        let label = match result.outcome {
-            Outcome::Goal => format!("{} GOAL {:.0}S", result.setup.seed, result.duration_s),
-            other => format!("{} {}", result.setup.seed, other.name()),
-        };
-        image.text(x + 20, y, &label, scale, INK);
+    chart.draw_series(
+        lines
+            .into_iter()
+            .map(|points| PathElement::new(points, line)),
+    )?;
+    for side in [-1.0f32, 1.0] {
+        let [(x, left), (_, right)] = field.goal_post_centres(side);
+        chart.draw_series([PathElement::new(
+            vec![(x, left), (x, right)],
+            GOAL.stroke_width(5),
+        )])?;
+        chart.draw_series(
+            [left, right]
+                .into_iter()
+                .map(|y| Circle::new((x, y), 5, GOAL.filled())),
+        )?;
     }
-    image.save_png(path)?;
+    Ok(())
+}
+
+/// One episode: paths, start pose, ball start and end.
+fn draw_episode(
+    chart: &mut FieldChart<'_, '_>,
+    result: &EpisodeResult,
+    colour: RGBColor,
+) -> anyhow::Result<()> {
+    let points = |path: &[Vec2]| path.iter().map(|p| (p.x, p.y)).collect::<Vec<_>>();
+    chart.draw_series([PathElement::new(
+        points(&result.robot_path),
+        colour.stroke_width(2),
+    )])?;
+    chart.draw_series([PathElement::new(
+        points(&result.ball_path),
+        colour.stroke_width(4),
+    )])?;
+    let start = result.setup.robot;
+    let heading = Vec2::new(start.theta.cos(), start.theta.sin()) * 0.35;
+    chart.draw_series([
+        PathElement::new(
+            vec![
+                (start.x, start.y),
+                (start.x + heading.x, start.y + heading.y),
+            ],
+            colour.stroke_width(4),
+        ),
+        PathElement::new(ring(result.setup.ball, 0.09), colour.stroke_width(2)),
+    ])?;
+    chart.draw_series([
+        Circle::new((start.x, start.y), 10, INK.filled()),
+        Circle::new((start.x, start.y), 8, colour.filled()),
+    ])?;
+    if let Some(end) = result.ball_path.last() {
+        let radius = if result.outcome == Outcome::Goal {
+            9
+        } else {
+            5
+        };
+        chart.draw_series([
+            Circle::new((end.x, end.y), radius + 1, INK.filled()),
+            Circle::new((end.x, end.y), radius, colour.filled()),
+        ])?;
+    }
     Ok(())
 }

@@ -152,7 +152,7 @@ fn both_transports_give_identical_trajectories() {
             controller.to_str().expect("utf-8 path"),
         ],
     );
-    assert!(said.contains("controller: started"), "{said}");
+    assert!(said.contains("event=controller_started"), "{said}");
     assert!(said.contains("controller statistics"), "{said}");
     let (in_process, _) = eval_trajectories(&dir, "in-process", &["--transport", "in-process"]);
     assert_eq!(
@@ -310,8 +310,11 @@ fn a_dead_simulator_gets_stops_and_a_new_one_carries_on() {
     ]);
     let said = text(&output);
     assert!(output.status.success(), "{said}");
-    assert!(said.contains("using the one already running"), "{said}");
-    assert!(said.contains("cleaned up after 1 dead process"), "{said}");
+    assert!(said.contains("event=controller_joined"), "{said}");
+    assert!(
+        said.contains("event=iceoryx2_cleaned dead_processes=1"),
+        "{said}"
+    );
     assert!(
         said.contains("time limit"),
         "the episode ran to its end: {said}"
@@ -404,26 +407,35 @@ fn eval_reports_a_lost_controller_and_starts_a_new_one() {
             .spawn()
             .expect("eval starts"),
     ));
+    // Results come on stdout, log events on stderr: one channel of lines for both.
     let stdout = eval.child().stdout.take().expect("stdout");
+    let stderr = eval.child().stderr.take().expect("stderr");
     let (lines_tx, lines_rx) = mpsc::channel();
+    let stderr_tx = lines_tx.clone();
     std::thread::spawn(move || {
         for line in std::io::BufRead::lines(std::io::BufReader::new(stdout)).map_while(Result::ok) {
             let _ = lines_tx.send(line);
         }
     });
-    // "controller: started <binary> (pid N, ...)": kill that process during episode 1.
+    std::thread::spawn(move || {
+        for line in std::io::BufRead::lines(std::io::BufReader::new(stderr)).map_while(Result::ok) {
+            let _ = stderr_tx.send(line);
+        }
+    });
+    // "event=controller_started binary=... pid=N ..." on stderr: kill that process during
+    // episode 1.
     let started = loop {
         let line = lines_rx
             .recv_timeout(START)
             .expect("eval starts a controller");
-        if line.starts_with("controller: started") {
+        if line.contains("event=controller_started") {
             break line;
         }
     };
     let pid: libc::pid_t = started
-        .split("(pid ")
+        .split(" pid=")
         .nth(1)
-        .and_then(|rest| rest.split(',').next())
+        .and_then(|rest| rest.split(' ').next())
         .and_then(|pid| pid.parse().ok())
         .unwrap_or_else(|| panic!("no pid in {started:?}"));
     std::thread::sleep(Duration::from_millis(500));
@@ -432,7 +444,9 @@ fn eval_reports_a_lost_controller_and_starts_a_new_one() {
     let killed = unsafe { libc::kill(pid, libc::SIGKILL) };
     assert_eq!(killed, 0);
     let status = eval.child().wait().expect("eval ends");
-    let said: Vec<String> = lines_rx.try_iter().collect();
+    // The readers end when eval's pipes close; the timeout only guards against a hang.
+    let said: Vec<String> =
+        std::iter::from_fn(|| lines_rx.recv_timeout(Duration::from_secs(5)).ok()).collect();
     let said = said.join("\n");
     assert!(status.success(), "{said}");
     let episode = |seed: &str| {
@@ -448,7 +462,11 @@ fn eval_reports_a_lost_controller_and_starts_a_new_one() {
         "a new controller drove: {said}"
     );
     // The first "started" line was read above: this one is the replacement.
-    assert_eq!(said.matches("controller: started").count(), 1, "{said}");
+    assert_eq!(
+        said.matches("event=controller_started").count(),
+        1,
+        "{said}"
+    );
     assert!(
         said.contains("episodes failed because the controller was lost: 1"),
         "{said}"
@@ -483,8 +501,8 @@ fn the_readme_eval_example_runs_in_the_default_domain() {
         .expect("dribble runs");
     let said = text(&output);
     assert!(output.status.success(), "{said}");
-    assert!(said.contains("controller: started"), "{said}");
-    assert!(said.contains("domain default"), "{said}");
+    assert!(said.contains("event=controller_started"), "{said}");
+    assert!(said.contains("domain=default"), "{said}");
     let log = std::fs::read_to_string(dir.join("controller.log")).expect("controller.log");
     assert!(log.contains("event=ready domain=default"), "{log}");
 }

@@ -84,6 +84,7 @@ fn report(kind: &str, engine: Engine) -> u64 {
 // and a model run on another thread changes what this one allocates.
 #[test]
 fn allocations_per_step_are_steady_and_the_tick_adds_none() {
+    support::install_log_subscriber();
     for kind in ["cnn", "hcnn", "rcnn"] {
         assert_eq!(
             report(kind, Engine::Compiled),

@@ -139,6 +139,7 @@ fn unreliable_ticks<P: Policy>(policy: P, ticks: u32) -> ((u64, u64), ControlLoo
 
 #[test]
 fn ten_thousand_ticks_allocate_nothing_after_start_up() {
+    support::install_log_subscriber();
     let ((allocations, bytes), control) = unreliable_ticks(FlakyPolicy::default(), 10_000);
     println!("allocations in 10,000 ticks after warm-up: {allocations} ({bytes} bytes)");
 
@@ -161,6 +162,7 @@ fn ten_thousand_ticks_allocate_nothing_after_start_up() {
 
 #[test]
 fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_the_compiled_engine() {
+    support::install_log_subscriber();
     let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
     for name in [
         "fixtures/cnn",

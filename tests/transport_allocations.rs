@@ -112,6 +112,7 @@ fn controller_allocations<T: ControllerPorts>(
 
 #[test]
 fn receive_and_tick_over_iceoryx2_allocate_nothing() {
+    support::install_log_subscriber();
     let domain = Domain::new(Some("test-allocations")).expect("domain");
     let ports = Iceoryx2ControllerPorts::open(&domain).expect("controller ports");
     let mut sim = Iceoryx2SimulatorPorts::open(&domain, "alloc-simulator").expect("sim ports");
@@ -123,6 +124,7 @@ fn receive_and_tick_over_iceoryx2_allocate_nothing() {
 
 #[test]
 fn a_whole_tick_over_channels_allocates_nothing() {
+    support::install_log_subscriber();
     let (ports, mut sim) = channel_transport();
     let counted = controller_allocations(&mut sim, ports, 2_000);
     println!("channels, 2,000 controller ticks after warm-up: {counted:?}");

@@ -17,9 +17,9 @@
 pub mod camera_sync;
 pub mod clock;
 pub mod control_loop;
-pub mod event_log;
 pub mod frame;
 pub mod histogram;
+pub mod log_output;
 pub mod motion_command;
 pub mod policy;
 pub mod realtime;

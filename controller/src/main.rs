@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
-use dribble_controller::event_log::{Chain, Level, log};
+use dribble_controller::log_output::{self, LogFormat};
 use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::file_watch::PolicyFileWatch;
 use dribble_controller::policy::manifest::PolicyManifest;
@@ -38,6 +38,10 @@ struct Cli {
     /// Default: the widest this CPU runs.
     #[arg(long, global = true)]
     isa: Option<Isa>,
+    /// How events are logged on standard error: `logfmt` (key=value pairs) or `json` (one
+    /// object a line). `RUST_LOG` filters them (default `info`; e.g. `RUST_LOG=warn`).
+    #[arg(long, default_value = "logfmt", global = true)]
+    log_format: LogFormat,
     #[command(subcommand)]
     command: Command,
 }
@@ -72,31 +76,28 @@ impl RealtimeArgs {
             fifo_priority: self.fifo_priority,
             cpu: self.cpu,
         });
-        let (level, action) = if self.require_realtime {
-            (Level::Error, "refusing to start (--require-realtime)")
-        } else {
-            (Level::Warn, "running on without it")
-        };
         for refusal in &report.refused {
-            log(
-                level,
-                "realtime_refused",
-                &[
-                    ("setting", &refusal.setting),
-                    ("reason", &refusal.reason),
-                    ("action", &action),
-                ],
-            );
+            if self.require_realtime {
+                tracing::error!(
+                    event = "realtime_refused",
+                    setting = %refusal.setting,
+                    reason = %refusal.reason,
+                    action = "refusing to start (--require-realtime)",
+                );
+            } else {
+                tracing::warn!(
+                    event = "realtime_refused",
+                    setting = %refusal.setting,
+                    reason = %refusal.reason,
+                    action = "running on without it",
+                );
+            }
         }
         if self.require_realtime && !report.refused.is_empty() {
             let refused: Vec<String> = report.refused.iter().map(ToString::to_string).collect();
             bail!("--require-realtime: {}", refused.join("; "));
         }
-        log(
-            Level::Info,
-            "realtime",
-            &[("in_force", &report.in_force_text())],
-        );
+        tracing::info!(event = "realtime", in_force = %report.in_force_text());
         Ok(())
     }
 }
@@ -163,6 +164,7 @@ enum Command {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    log_output::install(cli.log_format)?;
     let options = EngineOptions {
         engine: cli.engine,
         isa: cli.isa,
@@ -194,7 +196,7 @@ fn main() -> anyhow::Result<()> {
             let files = policy.as_deref().map(policy_files).unwrap_or_default();
             let result = run(config, loaded, files, clock, &domain, realtime);
             if let Err(error) = &result {
-                log(Level::Error, "failed", &[("error", &Chain(error.as_ref()))]);
+                tracing::error!(event = "failed", error = %format!("{error:#}"));
             }
             result
         }
@@ -255,43 +257,34 @@ fn run(
             domain.label()
         )
     })?;
-    log(
-        Level::Info,
-        "ready",
-        &[
-            ("domain", &domain.label()),
-            ("clock", &format!("{clock:?}").to_lowercase()),
-            ("rate_hz", &(1.0 / config.tick_period.as_secs_f64())),
-            ("pid", &std::process::id()),
-            ("cleaned_dead_nodes", &ports.cleaned_dead_nodes()),
-        ],
+    tracing::info!(
+        event = "ready",
+        domain = %domain.label(),
+        clock = %format!("{clock:?}").to_lowercase(),
+        rate_hz = 1.0 / config.tick_period.as_secs_f64(),
+        pid = std::process::id(),
+        cleaned_dead_nodes = ports.cleaned_dead_nodes(),
     );
     realtime.apply()?;
     let on_event = |event: NodeEvent| match event {
         NodeEvent::EpisodeStarted { episode } => {
-            log(Level::Info, "episode", &[("episode", &episode)]);
+            tracing::info!(event = "episode", episode);
         }
-        NodeEvent::SimulatorSilent => log(
-            Level::Warn,
-            "simulator_silent",
-            &[("action", &"publishing stops until ticks return")],
+        NodeEvent::SimulatorSilent => tracing::warn!(
+            event = "simulator_silent",
+            action = "publishing stops until ticks return",
         ),
-        NodeEvent::SimulatorBack => log(Level::Info, "simulator_back", &[]),
-        NodeEvent::CamerasSilent => log(
-            Level::Warn,
-            "cameras_silent",
-            &[("action", &"publishing stops until both cameras deliver")],
+        NodeEvent::SimulatorBack => tracing::info!(event = "simulator_back"),
+        NodeEvent::CamerasSilent => tracing::warn!(
+            event = "cameras_silent",
+            action = "publishing stops until both cameras deliver",
         ),
-        NodeEvent::CamerasBack => log(Level::Info, "cameras_back", &[]),
+        NodeEvent::CamerasBack => tracing::info!(event = "cameras_back"),
         // Logged with the file's path where the files are watched (the fixed-rate loop).
         NodeEvent::PolicyFileChanged { .. } => {}
-        NodeEvent::CameraResynced => log(
-            Level::Info,
-            "camera_resynced",
-            &[(
-                "action",
-                &"frames accepted again after a silence, whatever their sequence numbers",
-            )],
+        NodeEvent::CameraResynced => tracing::info!(
+            event = "camera_resynced",
+            action = "frames accepted again after a silence, whatever their sequence numbers",
         ),
     };
     match clock {
@@ -303,16 +296,10 @@ fn run(
                 .filter_map(|path| PolicyFileWatch::new(path))
                 .collect();
             let result = node.run_fixed_rate(stop, &mut watches, |event| match event {
-                NodeEvent::PolicyFileChanged { file } => log(
-                    Level::Warn,
-                    "policy_file_changed",
-                    &[
-                        ("path", &watches_path(&policy_files, file)),
-                        (
-                            "action",
-                            &"the loaded policy runs on; restart the controller to load the new one",
-                        ),
-                    ],
+                NodeEvent::PolicyFileChanged { file } => tracing::warn!(
+                    event = "policy_file_changed",
+                    path = %watches_path(&policy_files, file),
+                    action = "the loaded policy runs on; restart the controller to load the new one",
                 ),
                 other => on_event(other),
             });
@@ -339,14 +326,11 @@ fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(
     result: Result<(), E>,
 ) -> anyhow::Result<()> {
     let counters = control.counters();
-    log(
-        Level::Info,
-        "stopped",
-        &[
-            ("ticks", &counters.ticks),
-            ("episodes", &node.episodes),
-            ("watchdog_stops", &node.watchdog_stops),
-        ],
+    tracing::info!(
+        event = "stopped",
+        ticks = counters.ticks,
+        episodes = node.episodes,
+        watchdog_stops = node.watchdog_stops,
     );
     print_statistics(control);
     result.context("the transport failed")

@@ -23,6 +23,29 @@ pub struct RgbImage {
 }
 
 impl RgbImage {
+    /// A blank image of one colour.
+    pub fn filled(width: u32, height: u32, colour: [u8; 3]) -> Self {
+        Self {
+            width,
+            height,
+            pixels: colour
+                .iter()
+                .copied()
+                .cycle()
+                .take(width as usize * height as usize * 3)
+                .collect(),
+        }
+    }
+
+    /// Sets one pixel; a point outside the image is ignored.
+    pub fn put(&mut self, x: i64, y: i64, colour: [u8; 3]) {
+        if x < 0 || y < 0 || x >= i64::from(self.width) || y >= i64::from(self.height) {
+            return;
+        }
+        let i = ((y as usize) * self.width as usize + x as usize) * 3;
+        self.pixels[i..i + 3].copy_from_slice(&colour);
+    }
+
     pub fn save_png(&self, path: &Path) -> Result<(), ImageError> {
         write_png(
             path,

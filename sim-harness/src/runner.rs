@@ -30,6 +30,7 @@ use crate::camera_geometry::CameraGeometry;
 use crate::controller_link::{ControllerLink, LinkError};
 use crate::dataset::{EpisodeRecording, Outcome, PolicyCommand, Row};
 use crate::episode::EpisodeSetup;
+use crate::episode_observer::{EpisodeObserver, NoObserver};
 use crate::expert::{Expert, GroundTruth, Phase};
 use crate::render::{RenderError, Renderer};
 use crate::simulation::{STEPS_PER_MOTION_CYCLE, Simulation};
@@ -191,9 +192,22 @@ pub fn run_episode(
     setup: &EpisodeSetup,
     config: &EpisodeConfig,
     driver: Driver<'_>,
+    renderer: Option<&mut Renderer>,
+    recording: Option<&mut EpisodeRecording>,
+) -> Result<EpisodeResult, RenderError> {
+    run_episode_observed(setup, config, driver, renderer, recording, &mut NoObserver)
+}
+
+/// [`run_episode`], showing `observer` every frame, command and state as it plays.
+pub fn run_episode_observed(
+    setup: &EpisodeSetup,
+    config: &EpisodeConfig,
+    driver: Driver<'_>,
     mut renderer: Option<&mut Renderer>,
     mut recording: Option<&mut EpisodeRecording>,
+    observer: &mut dyn EpisodeObserver,
 ) -> Result<EpisodeResult, RenderError> {
+    observer.start(setup);
     let truth = |simulation: &Simulation| GroundTruth {
         robot: simulation.world().robot_pose(),
         ball: simulation.world().ball().position.truncate(),
@@ -214,7 +228,7 @@ pub fn run_episode(
         ),
         Driver::Policy(policy) => (false, Box::new(policy)),
         Driver::Controller(link) => {
-            return run_linked(setup, config, link, None, renderer);
+            return run_linked(setup, config, link, None, renderer, observer);
         }
         Driver::LabelledController(link, labels) => {
             let labelling = Labelling {
@@ -226,7 +240,7 @@ pub fn run_episode(
                     Box::new(BottomThumbnail::black()),
                 ),
             };
-            return run_linked(setup, config, link, Some(labelling), renderer);
+            return run_linked(setup, config, link, Some(labelling), renderer, observer);
         }
     };
     let clock = ManualClock::default();
@@ -251,6 +265,7 @@ pub fn run_episode(
                 CameraPosition::Top => top_new = true,
                 CameraPosition::Bottom => bottom_new = true,
             }
+            observer.frame(simulation.time(), camera, &top, &bottom);
         }
         trace.after_step(&simulation);
         if simulation
@@ -269,6 +284,7 @@ pub fn run_episode(
             let command = control.tick(input);
             let elapsed = started.elapsed();
             simulation.set_command(command.speed);
+            observe_cycle(observer, &simulation, &command);
             if command.is_new() {
                 tick_times.record(elapsed);
                 if let Some(recording) = recording.as_deref_mut() {
@@ -295,6 +311,7 @@ pub fn run_episode(
             break outcome;
         }
     };
+    observer.end(simulation.time(), outcome);
     let end = Ending {
         outcome,
         computed_commands: control.counters().new_commands,
@@ -303,6 +320,21 @@ pub fn run_episode(
         expert_executed: 0,
     };
     Ok(trace.finish(&simulation, setup, end))
+}
+
+/// Shows `observer` a motion cycle: the command the motion module got, and the state.
+fn observe_cycle(
+    observer: &mut dyn EpisodeObserver,
+    simulation: &Simulation,
+    command: &MotionCommand,
+) {
+    let time = simulation.time();
+    observer.command(time, command);
+    observer.state(
+        time,
+        simulation.world().robot_pose(),
+        simulation.world().ball().position.truncate(),
+    );
 }
 
 /// Takes the frame of `camera` that is due now: rendered if there is a renderer, stamped
@@ -495,6 +527,7 @@ fn run_linked(
     link: &mut dyn ControllerLink,
     mut labelling: Option<Labelling<'_>>,
     mut renderer: Option<&mut Renderer>,
+    observer: &mut dyn EpisodeObserver,
 ) -> Result<EpisodeResult, RenderError> {
     let mut simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
     let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
@@ -546,9 +579,14 @@ fn run_linked(
                 &mut top,
                 &mut bottom,
             )?;
+            observer.frame(simulation.time(), camera, &top, &bottom);
         }
         trace.after_step(&simulation);
-        match exchange(&simulation, camera, &top, &bottom) {
+        let exchanged = exchange(&simulation, camera, &top, &bottom);
+        if let Ok(Some(command)) = &exchanged {
+            observe_cycle(observer, &simulation, command);
+        }
+        match exchanged {
             Ok(Some(command)) => match labelling.as_mut() {
                 None => simulation.set_command(command.speed),
                 Some(labelling) => {
@@ -580,6 +618,7 @@ fn run_linked(
             break outcome;
         }
     };
+    observer.end(simulation.time(), outcome);
     let end = Ending {
         outcome,
         computed_commands,

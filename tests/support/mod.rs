@@ -6,6 +6,18 @@ pub mod counting_allocator;
 
 use std::path::{Path, PathBuf};
 
+/// Installs the binaries' log subscriber (logfmt on stderr) with every level enabled, once
+/// per test process, so that an allocation test counts whatever a log event on the tick's
+/// path would cost.
+pub fn install_log_subscriber() {
+    static INSTALLED: std::sync::Once = std::sync::Once::new();
+    INSTALLED.call_once(|| {
+        use dribble_controller::log_output::{LogFormat, install_with_filter};
+        install_with_filter(LogFormat::Logfmt, "trace").expect("the first subscriber installs");
+    });
+    assert!(tracing::dispatcher::has_been_set());
+}
+
 /// The manifest of a committed fixture policy (`models/fixtures/<kind>/policy.toml`).
 pub fn fixture_manifest(kind: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

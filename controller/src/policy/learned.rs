@@ -233,7 +233,15 @@ impl Network {
                     };
                     return Ok((network, report));
                 }
-                Err(why) => fallback = Some(why.0),
+                Err(why) => {
+                    tracing::warn!(
+                        event = "engine_fallback",
+                        network = %path.display(),
+                        reason = %why.0,
+                        action = "tract runs this network",
+                    );
+                    fallback = Some(why.0);
+                }
             }
         }
         let state = match &names.recurrent {

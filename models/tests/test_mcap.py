@@ -1,0 +1,166 @@
+"""An episode that `dribble record --mcap` writes reads back with the `mcap` package (an
+independent reader): the channels, their schemas, how many messages each holds, and time order."""
+
+import json
+import os
+import subprocess
+from collections import Counter
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from test_dataset import dribble_binary
+
+# topic: (schema name, schema encoding, message encoding)
+CHANNELS = {
+    "/camera/top": ("foxglove.RawImage", "protobuf", "protobuf"),
+    "/camera/bottom": ("foxglove.RawImage", "protobuf", "protobuf"),
+    "/policy/thumbnail/top": ("foxglove.RawImage", "protobuf", "protobuf"),
+    "/policy/thumbnail/bottom": ("foxglove.RawImage", "protobuf", "protobuf"),
+    "/motion/command": ("dribble.MotionCommand", "jsonschema", "json"),
+    "/field/markings": ("foxglove.SceneUpdate", "protobuf", "protobuf"),
+    "/field/scene": ("foxglove.SceneUpdate", "protobuf", "protobuf"),
+    "/robot/pose": ("foxglove.PoseInFrame", "protobuf", "protobuf"),
+    "/ball/pose": ("foxglove.PoseInFrame", "protobuf", "protobuf"),
+    "/episode/outcome": ("dribble.EpisodeOutcome", "jsonschema", "json"),
+}
+
+
+@pytest.fixture(scope="module")
+def episode(tmp_path_factory):
+    """One 3-second expert episode (seed 10003), recorded with cameras, written as MCAP."""
+    tmp = tmp_path_factory.mktemp("mcap")
+    result = subprocess.run(
+        [
+            str(dribble_binary()), "record", "--episodes", "10003..10004", "--time-limit", "3",
+            "--out", str(tmp / "dataset"), "--mcap", str(tmp / "mcap"), "--mcap-camera-hz", "10",
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "XDG_RUNTIME_DIR": str(tmp)},
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    files = sorted((tmp / "mcap").glob("*.mcap"))
+    assert [f.name for f in files] == ["episode_10003.mcap"]
+    with open(files[0], "rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        messages = [
+            (channel.topic, schema, channel.message_encoding, message.log_time, message.data)
+            for schema, channel, message in reader.iter_messages(log_time_order=False)
+        ]
+    return summary, messages
+
+
+def test_every_channel_is_there_with_its_schema(episode):
+    summary, messages = episode
+    channels = {c.topic: c for c in summary.channels.values()}
+    assert set(channels) == set(CHANNELS)
+    for topic, (schema_name, schema_encoding, message_encoding) in CHANNELS.items():
+        schema = summary.schemas[channels[topic].schema_id]
+        assert (schema.name, schema.encoding) == (schema_name, schema_encoding), topic
+        assert channels[topic].message_encoding == message_encoding, topic
+        assert schema.data, topic
+    print("\nchannels and message counts:")
+    for topic, count in sorted(Counter(m[0] for m in messages).items()):
+        print(f"  {topic:28} {CHANNELS[topic][0]:24} {count}")
+
+
+def test_message_counts_follow_the_rates_of_a_three_second_episode(episode):
+    _, messages = episode
+    counts = Counter(m[0] for m in messages)
+    # 100 Hz motion cycles, 30 Hz cameras (thumbnails every frame, images at 10 Hz), 30 Hz state.
+    assert 295 <= counts["/motion/command"] <= 301, counts
+    assert 88 <= counts["/policy/thumbnail/top"] <= 91, counts
+    assert 88 <= counts["/policy/thumbnail/bottom"] <= 91, counts
+    assert 29 <= counts["/camera/top"] <= 31, counts
+    assert 29 <= counts["/camera/bottom"] <= 31, counts
+    assert 88 <= counts["/robot/pose"] <= 91, counts
+    assert counts["/ball/pose"] == counts["/robot/pose"]
+    assert counts["/field/scene"] == counts["/robot/pose"]
+    assert counts["/field/markings"] == 1  # once, at the start (a file is read from there)
+    assert counts["/episode/outcome"] == 1
+
+
+def test_messages_are_in_simulated_time_order_and_end_with_the_outcome(episode):
+    _, messages = episode
+    times = [m[3] for m in messages]
+    assert times == sorted(times)
+    assert times[0] == 0 and 2.9e9 <= times[-1] <= 3.1e9  # the simulated clock, not the wall's
+    outcome = [json.loads(m[4]) for m in messages if m[0] == "/episode/outcome"][0]
+    assert outcome == {"seed": 10003, "outcome": "time_limit", "time_s": pytest.approx(3.0, abs=0.02)}
+    assert messages[-1][0] == "/episode/outcome"
+
+
+def test_commands_say_new_repeated_or_stop_and_stay_normalised(episode):
+    _, messages = episode
+    commands = [json.loads(m[4]) for m in messages if m[0] == "/motion/command"]
+    kinds = Counter(c["kind"] for c in commands)
+    assert set(kinds) <= {"new", "repeated", "stop"}
+    assert 85 <= kinds["new"] <= 92, kinds  # one per new camera pair, 30 Hz
+    assert kinds["repeated"] > 150, kinds
+    for c in commands:
+        assert all(-1.0 <= c[k] <= 1.0 for k in ("forward", "left", "turn")), c
+
+
+def test_the_shipped_layout_shows_only_channels_the_files_have():
+    layout = json.loads((Path(__file__).resolve().parents[2] / "sim-harness" / "foxglove-layout.json").read_text())
+    topics = set()
+    for config in layout["configById"].values():
+        topics |= set(config.get("topics", {}))
+        if "imageMode" in config:
+            topics.add(config["imageMode"]["imageTopic"])
+        if "topicPath" in config:
+            topics.add(config["topicPath"])
+        for path in config.get("paths", []):
+            topics.add(path["value"].split(".")[0])
+    assert topics and topics <= set(CHANNELS), topics - set(CHANNELS)
+
+    def panels(node):
+        return [node] if isinstance(node, str) else panels(node["first"]) + panels(node["second"])
+
+    assert sorted(panels(layout["layout"])) == sorted(layout["configById"])
+
+
+def test_eval_live_serves_the_same_channels_over_foxglove_websocket(tmp_path):
+    """`dribble eval --live 0` advertises every channel to a Foxglove WebSocket client and
+    streams commands to it, paced to the simulated clock."""
+    from websockets.sync.client import connect
+
+    process = subprocess.Popen(
+        [
+            str(dribble_binary()), "eval", "--driver", "expert", "--episodes", "10000..10001",
+            "--time-limit", "3", "--live", "0", "--render", "--plot", str(tmp_path / "plot.png"),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "XDG_RUNTIME_DIR": str(tmp_path)},
+    )
+    try:
+        url = None
+        for line in process.stderr:
+            if "event=foxglove_live" in line:
+                url = line.split("url=")[1].split()[0]
+                break
+        assert url and url.startswith("ws://127.0.0.1:"), url
+        with connect(url, subprotocols=["foxglove.sdk.v1"], open_timeout=10) as ws:
+            topics = {}
+            while set(topics.values()) != set(CHANNELS):
+                message = json.loads(ws.recv(timeout=10))
+                for channel in message.get("channels", []):
+                    topics[channel["id"]] = channel["topic"]
+                    assert channel["schemaName"] == CHANNELS[channel["topic"]][0], channel
+            command = next(i for i, topic in topics.items() if topic == "/motion/command")
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": command}]}))
+            received = []
+            while len(received) < 20:
+                frame = ws.recv(timeout=10)
+                if isinstance(frame, bytes) and frame[0] == 1:  # opcode 1: message data
+                    assert int.from_bytes(frame[1:5], "little") == 7
+                    received.append(json.loads(frame[13:]))
+            assert all(c["kind"] in ("new", "repeated", "stop") for c in received)
+    finally:
+        process.kill()
+        process.wait()
