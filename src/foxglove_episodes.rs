@@ -25,7 +25,8 @@ use std::sync::Arc;
 use anyhow::Context as _;
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::{
-    BottomFrame, BottomThumbnail, CameraPosition, MotionCommand, Timestamp, TopFrame, TopThumbnail,
+    BottomFrame, BottomThumbnail, CameraFrame, CameraPosition, MotionCommand, Thumbnail, Timestamp,
+    TopFrame, TopThumbnail,
 };
 use dribble_sim::dataset::Outcome;
 use dribble_sim::episode::EpisodeSetup;
@@ -271,40 +272,18 @@ impl FoxgloveEpisodes {
         );
     }
 
-    fn scene_of_field(&self, time: Timestamp) -> SceneUpdate {
+    fn scene_of_field(time: Timestamp) -> SceneUpdate {
         let field = FieldGeometry::SPL;
-        let (hl, hw) = (field.length / 2.0, field.width / 2.0);
-        let mut segments: Vec<(Vec2, Vec2)> = vec![
-            (Vec2::new(-hl, -hw), Vec2::new(hl, -hw)),
-            (Vec2::new(hl, -hw), Vec2::new(hl, hw)),
-            (Vec2::new(hl, hw), Vec2::new(-hl, hw)),
-            (Vec2::new(-hl, hw), Vec2::new(-hl, -hw)),
-            (Vec2::new(0.0, -hw), Vec2::new(0.0, hw)),
-        ];
-        let radius = field.centre_circle_diameter / 2.0;
-        for i in 0..48 {
-            let angle = |i: i32| i as f32 / 48.0 * std::f32::consts::TAU;
-            segments.push((
-                Vec2::from_angle(angle(i)) * radius,
-                Vec2::from_angle(angle(i + 1)) * radius,
-            ));
-        }
-        for side in [-1.0f32, 1.0] {
-            for (depth, half) in [(1.65, 2.0), (0.6, 1.1)] {
-                let front = side * (hl - depth);
-                segments.push((Vec2::new(side * hl, -half), Vec2::new(front, -half)));
-                segments.push((Vec2::new(front, -half), Vec2::new(front, half)));
-                segments.push((Vec2::new(front, half), Vec2::new(side * hl, half)));
-            }
-        }
         let lines = LinePrimitive {
             r#type: line_primitive::Type::LineList as i32,
             pose: Some(pose(0.0, 0.0, 0.0, 0.0)),
             thickness: f64::from(field.line_width),
             scale_invariant: false,
-            points: segments
+            points: field
+                .line_polylines(48)
                 .iter()
-                .flat_map(|&(a, b)| [point(a, 0.002), point(b, 0.002)])
+                .flat_map(|line| line.windows(2))
+                .flat_map(|pair| [point(pair[0], 0.002), point(pair[1], 0.002)])
                 .collect(),
             color: Some(colour(0.94, 0.94, 0.94)),
             ..Default::default()
@@ -406,27 +385,6 @@ impl FoxgloveEpisodes {
             ],
         }
     }
-
-    fn log_image(
-        channel: &Channel<RawImage>,
-        time: Timestamp,
-        frame_id: &str,
-        (width, height, encoding, step): (usize, usize, &str, usize),
-        bytes: &[u8],
-    ) {
-        channel.log_with_time(
-            &RawImage {
-                timestamp: Some(foxglove_time(time)),
-                frame_id: frame_id.into(),
-                width: width as u32,
-                height: height as u32,
-                encoding: encoding.into(),
-                step: step as u32,
-                data: Bytes::copy_from_slice(bytes),
-            },
-            time.as_nanos(),
-        );
-    }
 }
 
 impl EpisodeObserver for FoxgloveEpisodes {
@@ -454,7 +412,7 @@ impl EpisodeObserver for FoxgloveEpisodes {
                 Err(error) => self.fail(error),
             }
         }
-        let markings = self.scene_of_field(Timestamp::ZERO);
+        let markings = Self::scene_of_field(Timestamp::ZERO);
         self.channels.markings.log_with_time(&markings, 0u64);
     }
 
@@ -478,55 +436,24 @@ impl EpisodeObserver for FoxgloveEpisodes {
             self.options.camera_hz,
         );
         let (top_thumbnail, bottom_thumbnail) = &mut self.thumbnails;
+        let channels = &self.channels;
         match camera {
-            CameraPosition::Top => {
-                if due {
-                    Self::log_image(
-                        &self.channels.top,
-                        time,
-                        "camera_top",
-                        (640, 480, "yuyv", 640 * 2),
-                        top.as_bytes(),
-                    );
-                }
-                downscale(top, top_thumbnail);
-                Self::log_image(
-                    &self.channels.top_thumbnail,
-                    time,
-                    "camera_top",
-                    (
-                        TopThumbnail::WIDTH,
-                        TopThumbnail::HEIGHT,
-                        "mono8",
-                        TopThumbnail::WIDTH,
-                    ),
-                    top_thumbnail.as_bytes(),
-                );
-            }
-            CameraPosition::Bottom => {
-                if due {
-                    Self::log_image(
-                        &self.channels.bottom,
-                        time,
-                        "camera_bottom",
-                        (320, 240, "yuyv", 320 * 2),
-                        bottom.as_bytes(),
-                    );
-                }
-                downscale(bottom, bottom_thumbnail);
-                Self::log_image(
-                    &self.channels.bottom_thumbnail,
-                    time,
-                    "camera_bottom",
-                    (
-                        BottomThumbnail::WIDTH,
-                        BottomThumbnail::HEIGHT,
-                        "mono8",
-                        BottomThumbnail::WIDTH,
-                    ),
-                    bottom_thumbnail.as_bytes(),
-                );
-            }
+            CameraPosition::Top => log_camera(
+                [&channels.top, &channels.top_thumbnail],
+                "camera_top",
+                time,
+                top,
+                due,
+                top_thumbnail,
+            ),
+            CameraPosition::Bottom => log_camera(
+                [&channels.bottom, &channels.bottom_thumbnail],
+                "camera_bottom",
+                time,
+                bottom,
+                due,
+                bottom_thumbnail,
+            ),
         }
     }
 
@@ -562,7 +489,7 @@ impl EpisodeObserver for FoxgloveEpisodes {
         if self.server.is_some() {
             // A viewer that joined since the start has not seen the field.
             if ns % 1_000_000_000 < (1e9 / STATE_HZ) as u64 {
-                let markings = self.scene_of_field(time);
+                let markings = Self::scene_of_field(time);
                 self.channels.markings.log_with_time(&markings, ns);
             }
             // Live: no faster than the simulated clock, so that people can watch.
@@ -608,6 +535,60 @@ impl EpisodeObserver for FoxgloveEpisodes {
             }
         }
     }
+}
+
+/// One camera's frame at `time`: the image when one is due, and the thumbnail the policy
+/// computes from it (the robot's own `downscale`), every frame.
+fn log_camera<const FW: usize, const FH: usize, const TW: usize, const TH: usize>(
+    [image_channel, thumbnail_channel]: [&Channel<RawImage>; 2],
+    frame_id: &str,
+    time: Timestamp,
+    frame: &CameraFrame<FW, FH>,
+    image_due: bool,
+    thumbnail: &mut Thumbnail<TW, TH>,
+) {
+    if image_due {
+        log_image(
+            image_channel,
+            time,
+            frame_id,
+            [FW, FH],
+            "yuyv",
+            frame.as_bytes(),
+        );
+    }
+    downscale(frame, thumbnail);
+    log_image(
+        thumbnail_channel,
+        time,
+        frame_id,
+        [TW, TH],
+        "mono8",
+        thumbnail.as_bytes(),
+    );
+}
+
+/// `bytes`, rows of `width` pixels in `encoding`, as a `foxglove.RawImage` at `time`.
+fn log_image(
+    channel: &Channel<RawImage>,
+    time: Timestamp,
+    frame_id: &str,
+    [width, height]: [usize; 2],
+    encoding: &str,
+    bytes: &[u8],
+) {
+    channel.log_with_time(
+        &RawImage {
+            timestamp: Some(foxglove_time(time)),
+            frame_id: frame_id.into(),
+            width: width as u32,
+            height: height as u32,
+            encoding: encoding.into(),
+            step: (bytes.len() / height.max(1)) as u32,
+            data: Bytes::copy_from_slice(bytes),
+        },
+        time.as_nanos(),
+    );
 }
 
 /// Whether a message of a stream at `hz` is due at `time`; if so, moves `next` on by whole

@@ -155,34 +155,14 @@ fn draw_field(
     field: &FieldGeometry,
     half: Vec2,
 ) -> anyhow::Result<()> {
-    let (hl, hw) = (field.length / 2.0, field.width / 2.0);
     chart.draw_series([Rectangle::new(
         [(-half.x, -half.y), (half.x, half.y)],
         CARPET.filled(),
     )])?;
     let line = LINE.stroke_width(2);
-    let mut lines: Vec<Vec<(f32, f32)>> = vec![
-        vec![(-hl, -hw), (hl, -hw), (hl, hw), (-hl, hw), (-hl, -hw)],
-        vec![(0.0, -hw), (0.0, hw)],
-        ring(Vec2::ZERO, field.centre_circle_diameter / 2.0),
-    ];
-    for side in [-1.0f32, 1.0] {
-        // Penalty area (1.65 m deep, 4 m wide) and goal area (0.6 m by 2.2 m).
-        for (depth, half_width) in [(1.65, 2.0), (0.6, 1.1)] {
-            let front = side * (hl - depth);
-            lines.push(vec![
-                (side * hl, -half_width),
-                (front, -half_width),
-                (front, half_width),
-                (side * hl, half_width),
-            ]);
-        }
-    }
-    chart.draw_series(
-        lines
-            .into_iter()
-            .map(|points| PathElement::new(points, line)),
-    )?;
+    chart.draw_series(field.line_polylines(48).into_iter().map(|points| {
+        PathElement::new(points.iter().map(|p| (p.x, p.y)).collect::<Vec<_>>(), line)
+    }))?;
     for side in [-1.0f32, 1.0] {
         let [(x, left), (_, right)] = field.goal_post_centres(side);
         chart.draw_series([PathElement::new(

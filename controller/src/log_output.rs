@@ -63,16 +63,19 @@ pub enum LogSetupError {
 }
 
 /// The filter `RUST_LOG` asks for, `info` where it is unset or empty.
-pub fn filter_from_env() -> Result<EnvFilter, LogSetupError> {
+fn filter_from_env() -> Result<EnvFilter, LogSetupError> {
     match std::env::var(EnvFilter::DEFAULT_ENV) {
-        Ok(value) if !value.trim().is_empty() => {
-            EnvFilter::try_new(&value).map_err(|error| LogSetupError::BadFilter {
-                value,
-                reason: error.to_string(),
-            })
-        }
+        Ok(value) if !value.trim().is_empty() => parse_filter(&value),
         _ => Ok(EnvFilter::new("info")),
     }
+}
+
+/// `directives` in `RUST_LOG`'s syntax, or why not.
+fn parse_filter(directives: &str) -> Result<EnvFilter, LogSetupError> {
+    EnvFilter::try_new(directives).map_err(|error| LogSetupError::BadFilter {
+        value: directives.to_owned(),
+        reason: error.to_string(),
+    })
 }
 
 /// Installs the process's log subscriber: `format` lines on standard error, filtered by
@@ -85,11 +88,7 @@ pub fn install(format: LogFormat) -> Result<(), LogSetupError> {
 /// syntax instead of the environment's (the allocation tests use `trace`, so that any event
 /// on the tick's path would be formatted, and counted).
 pub fn install_with_filter(format: LogFormat, directives: &str) -> Result<(), LogSetupError> {
-    let filter = EnvFilter::try_new(directives).map_err(|error| LogSetupError::BadFilter {
-        value: directives.to_owned(),
-        reason: error.to_string(),
-    })?;
-    install_filtered(format, filter)
+    install_filtered(format, parse_filter(directives)?)
 }
 
 fn install_filtered(format: LogFormat, filter: EnvFilter) -> Result<(), LogSetupError> {

@@ -41,27 +41,11 @@ impl FieldCanvas {
     }
 
     fn draw_field(&mut self, field: &FieldGeometry) {
-        let (hl, hw) = (field.length / 2.0, field.width / 2.0);
         let w = field.line_width.max(2.0 / self.pixels_per_metre);
-        let corners = [
-            Vec2::new(-hl, -hw),
-            Vec2::new(hl, -hw),
-            Vec2::new(hl, hw),
-            Vec2::new(-hl, hw),
-        ];
-        for i in 0..4 {
-            self.line(corners[i], corners[(i + 1) % 4], w, LINE);
+        for line in field.line_polylines(96) {
+            self.path(&line, w, LINE);
         }
-        self.line(Vec2::new(0.0, -hw), Vec2::new(0.0, hw), w, LINE);
-        self.circle(Vec2::ZERO, field.centre_circle_diameter / 2.0, w, LINE);
         for side in [-1.0f32, 1.0] {
-            for (depth, half) in [(1.65, 2.0), (0.6, 1.1)] {
-                let front = side * (hl - depth);
-                self.line(Vec2::new(front, -half), Vec2::new(front, half), w, LINE);
-                for y in [-half, half] {
-                    self.line(Vec2::new(side * hl, y), Vec2::new(front, y), w, LINE);
-                }
-            }
             let [(x, left), (_, right)] = field.goal_post_centres(side);
             self.line(Vec2::new(x, left), Vec2::new(x, right), 0.08, GOAL);
             for y in [left, right] {
@@ -115,15 +99,6 @@ impl FieldCanvas {
                     }
                 }
             }
-        }
-    }
-
-    pub fn circle(&mut self, centre: Vec2, radius: f32, width: f32, colour: [u8; 3]) {
-        let segments = 96;
-        for i in 0..segments {
-            let angle = |k: i32| k as f32 / segments as f32 * core::f32::consts::TAU;
-            let point = |k: i32| centre + Vec2::new(angle(k).cos(), angle(k).sin()) * radius;
-            self.line(point(i), point(i + 1), width, colour);
         }
     }
 

@@ -159,7 +159,7 @@ pub fn static_scene(field: &FieldGeometry, goal_depth: f32) -> Mesh {
     mesh.ground_line(Vec2::new(-0.05, 0.0), Vec2::new(0.05, 0.0), lw);
     for side in [-1.0f32, 1.0] {
         let goal_line = side * (hl - inset);
-        for (depth, half_width) in [(1.65, 2.0), (0.6, 1.1)] {
+        for (depth, half_width) in field.areas() {
             let front = side * (hl - depth + inset);
             mesh.ground_line(
                 Vec2::new(front, -half_width),
