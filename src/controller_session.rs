@@ -12,7 +12,8 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use dribble_controller::Policy;
 use dribble_controller::control_loop::LoopConfig;
-use dribble_controller::policy::OnnxPolicy;
+use dribble_controller::policy::engine::Isa;
+use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::transport::ipc::Domain;
 use dribble_sim::controller_link::{ControllerLink, Iceoryx2Link, LinkTimeouts, ThreadLink};
 
@@ -45,6 +46,16 @@ pub struct ControllerOptions {
     /// A controller that dies is noticed within about 10 ms whatever this is.
     #[arg(long, default_value_t = 2000)]
     pub answer_timeout_ms: u64,
+    /// Which engine the controller runs the policy with: `compiled` (its own allocation-free
+    /// engine, the default) or `tract`.
+    #[arg(long, default_value = "compiled")]
+    pub engine: Engine,
+    /// The compiled engine's instruction set (portable, sse2, ssse3, sse4.2, avx2+fma,
+    /// avx512). Default: the widest this CPU runs. Pin it to compare closed-loop results
+    /// across machines: each instruction set adds up in its own order, and a closed loop
+    /// turns differences in the last bits into different episodes.
+    #[arg(long)]
+    pub isa: Option<Isa>,
 }
 
 impl ControllerOptions {
@@ -81,6 +92,13 @@ impl ControllerOptions {
         Ok(())
     }
 
+    fn engine_options(&self) -> EngineOptions {
+        EngineOptions {
+            engine: self.engine,
+            isa: self.isa,
+        }
+    }
+
     fn timeouts(&self) -> LinkTimeouts {
         LinkTimeouts {
             answer: Duration::from_millis(self.answer_timeout_ms),
@@ -91,7 +109,11 @@ impl ControllerOptions {
 
 /// A policy's controller, reached over a transport.
 pub enum ControllerSession {
-    Thread(ThreadLink),
+    Thread {
+        link: ThreadLink,
+        /// What runs the policy's networks, as the loaded policy reports it.
+        engine: Option<String>,
+    },
     Process(Box<Iceoryx2Link>),
 }
 
@@ -105,14 +127,18 @@ impl ControllerSession {
         match options.transport {
             Transport::InProcess => {
                 let policy = policy.to_owned();
+                let engine_options = options.engine_options();
+                let (report_tx, report_rx) = std::sync::mpsc::channel();
                 let load = move || {
-                    OnnxPolicy::load(&policy).map(|(policy, _)| Box::new(policy) as Box<dyn Policy>)
+                    OnnxPolicy::load_with(&policy, engine_options).map(|(policy, _)| {
+                        let _ = report_tx.send(policy.engine().to_string());
+                        Box::new(policy) as Box<dyn Policy>
+                    })
                 };
-                Ok(Self::Thread(ThreadLink::spawn(
-                    control,
-                    load,
-                    options.timeouts(),
-                )?))
+                let link = ThreadLink::spawn(control, load, options.timeouts())?;
+                // The load has finished when `spawn` returns (it waits for it).
+                let engine = report_rx.try_recv().ok();
+                Ok(Self::Thread { link, engine })
             }
             Transport::Iceoryx2 => open_process(options, policy, control),
         }
@@ -120,8 +146,23 @@ impl ControllerSession {
 
     pub fn link(&mut self) -> &mut dyn ControllerLink {
         match self {
-            Self::Thread(link) => link,
+            Self::Thread { link, .. } => link,
             Self::Process(link) => link.as_mut(),
+        }
+    }
+
+    /// What runs the policy's networks, e.g. `compiled (avx2+fma)` or `tract`: as the
+    /// loaded policy reports it in this process, or as the controller process wrote it to
+    /// its log when it loaded the policy (`None` for a controller this session joined, which
+    /// logs elsewhere).
+    pub fn engine(&self, options: &ControllerOptions) -> Option<String> {
+        match self {
+            Self::Thread { engine, .. } => engine.clone(),
+            Self::Process(link) if link.owns_controller() => {
+                let log = std::fs::read_to_string(&options.controller_log).ok()?;
+                engine_in_log(&log).map(str::to_owned)
+            }
+            Self::Process(_) => None,
         }
     }
 
@@ -161,6 +202,11 @@ fn open_process(
     command
         .arg("--rate-hz")
         .arg((1.0 / control.tick_period.as_secs_f64()).to_string())
+        .args(["--engine", options.engine.name()]);
+    if let Some(isa) = options.isa {
+        command.args(["--isa", isa.name()]);
+    }
+    command
         .args(["run", "--clock", "simulation"])
         .arg("--policy")
         .arg(policy)
@@ -221,6 +267,18 @@ fn controller_binary(given: Option<&Path>) -> anyhow::Result<PathBuf> {
     Ok(PathBuf::from("dribble-controller"))
 }
 
+/// The engine the last policy loaded in a controller log runs on: the end of the controller's
+/// `policy: ... engine compiled (avx2+fma)` line.
+fn engine_in_log(log: &str) -> Option<&str> {
+    log.lines()
+        .rev()
+        .filter(|line| line.starts_with("policy: "))
+        .find_map(|line| {
+            line.rsplit_once(", engine ")
+                .map(|(_, engine)| engine.trim())
+        })
+}
+
 /// The statistics a stopped controller printed (its log's lines that are not log events).
 fn print_controller_statistics(log: &Path) {
     let Ok(text) = std::fs::read_to_string(log) else {
@@ -230,5 +288,20 @@ fn print_controller_statistics(log: &Path) {
     println!("controller statistics ({}):", log.display());
     for line in text.lines().filter(|l| !l.starts_with("ts=")) {
         println!("  {line}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::engine_in_log;
+
+    #[test]
+    fn the_engine_is_read_from_the_last_policy_line_of_a_controller_log() {
+        let log = "policy: cnn from a (1 network file(s), trained on \"x\"), engine tract\n\
+                   ts=2026-11-23T10:00:00Z level=info event=ready\n\
+                   policy: cnn from b (1 network file(s), trained on \"y, engine z\"), engine compiled (avx2+fma)\n\
+                   ticks: 100\n";
+        assert_eq!(engine_in_log(log), Some("compiled (avx2+fma)"));
+        assert_eq!(engine_in_log("ts=... event=ready\n"), None);
     }
 }

@@ -98,6 +98,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let mut results: Vec<EpisodeResult> = Vec::new();
     let mut latency = TickStats::new(config.control.budget);
     let mut session: Option<ControllerSession> = None;
+    let mut engine: Option<String> = None;
     if policy_path.is_some() {
         args.controller.start_log()?;
     }
@@ -123,11 +124,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             }
             Some(path) => {
                 if session.is_none() {
-                    session = Some(ControllerSession::open(
-                        &args.controller,
-                        path,
-                        config.control,
-                    )?);
+                    let opened = ControllerSession::open(&args.controller, path, config.control)?;
+                    engine = opened.engine(&args.controller);
+                    session = Some(opened);
                 }
                 let link = session.as_mut().map(ControllerSession::link);
                 let driver = Driver::Controller(link.context("no controller session")?);
@@ -168,6 +167,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         .filter(|r| r.outcome == Outcome::ControllerLost)
         .count();
     println!();
+    if let Some(engine) = &engine {
+        println!("engine: {engine}");
+    }
     println!("goals: {} of {}", goals.len(), results.len());
     if lost > 0 {
         println!("episodes failed because the controller was lost: {lost}");
@@ -207,13 +209,19 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         );
     }
     if let Some(path) = &args.trajectories {
-        write_trajectories(&results, path)?;
+        write_trajectories(&results, engine.as_deref(), path)?;
         println!("trajectories: {}", path.display());
     }
     Ok(())
 }
 
-fn write_trajectories(results: &[EpisodeResult], path: &Path) -> anyhow::Result<()> {
+/// The episodes' outcomes and 10 Hz paths as JSON, with the engine that ran the policy
+/// (`null` for the expert, or a controller this run joined).
+fn write_trajectories(
+    results: &[EpisodeResult],
+    engine: Option<&str>,
+    path: &Path,
+) -> anyhow::Result<()> {
     let points = |path: &[glam::Vec2]| path.iter().map(|p| [p.x, p.y]).collect::<Vec<_>>();
     let episodes: Vec<_> = results
         .iter()
@@ -229,7 +237,7 @@ fn write_trajectories(results: &[EpisodeResult], path: &Path) -> anyhow::Result<
             })
         })
         .collect();
-    let text = serde_json::to_string(&json!({ "episodes": episodes }))?;
+    let text = serde_json::to_string(&json!({ "engine": engine, "episodes": episodes }))?;
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 

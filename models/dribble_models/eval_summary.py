@@ -8,7 +8,7 @@ directory keeps and what the results table reads. Per episode: seed, outcome, du
 commands, failure (if any), metres walked, the share of the episode spent standing, the
 closest the robot came to the ball, how far the ball moved toward the target goal (the goal
 on the ball's starting side, as the episode protocol sets it) and the ball's distance to
-that goal at the end.
+that goal at the end. Beside the episodes: the engine that ran the policy.
 """
 
 from __future__ import annotations
@@ -43,7 +43,12 @@ def summarise_episode(episode: dict) -> dict:
 
 
 def summarise(trajectories: dict) -> dict:
-    return {"episodes": [summarise_episode(e) for e in trajectories["episodes"]]}
+    # The engine that ran the policy ("compiled (avx2+fma)", "tract"): absent from files
+    # written before `dribble eval` recorded it, and null for the expert.
+    return {
+        "engine": trajectories.get("engine"),
+        "episodes": [summarise_episode(e) for e in trajectories["episodes"]],
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

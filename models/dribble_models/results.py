@@ -49,6 +49,10 @@ def model_row(name: str, directory: Path) -> dict:
         goals = [e["duration_s"] for e in episodes if e["outcome"] == "goal"]
         row["goals"], row["episodes"] = len(goals), len(episodes)
         row["time_to_goal_s"] = statistics.median(goals) if goals else None
+    # The engine that ran the policy in the closed loop; summaries written before `dribble
+    # eval` recorded it do not say (a closed loop amplifies an engine's rounding into other
+    # episodes, so goal counts belong to the engine that measured them).
+    row["closed_loop_engine"] = (evaluation or {}).get("engine") or "not recorded"
     return row
 
 
@@ -58,11 +62,11 @@ def fmt(value, digits: int = 3) -> str:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| model | training | train error | validation error | test error | goals /20 (test) | median time to goal | goals /10 (held-out training episodes) | forward pass |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| model | training | train error | validation error | test error | goals /20 (test) | median time to goal | goals /10 (held-out training episodes) | closed loop run by | forward pass |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, train, test, goals, forward in PAPER:
-        lines.append(f"| {name} | paper: Adam, 100 episodes | {train} | - | {test} | {goals} | - | - | {forward} |")
+        lines.append(f"| {name} | paper: Adam, 100 episodes | {train} | - | {test} | {goals} | - | - | - | {forward} |")
     for row in rows:
         t = row["training"]
         how = f"{t['epochs']} epochs (kept {t.get('best_epoch', '-')}), {t.get('wall_time_s', 0) / 60:.0f} min"
@@ -73,7 +77,7 @@ def table(rows: list[dict]) -> str:
         held_out = f"{sum(e['outcome'] == 'goal' for e in selection['episodes'])}" if selection else "-"
         validation = fmt(t.get("validation_error"))
         lines.append(
-            f"| {row['name']} | {how} | {fmt(row['train_error'])} | {validation} | {fmt(row['test_error'])} | {goals} | {seconds} | {held_out} | {forward} |"
+            f"| {row['name']} | {how} | {fmt(row['train_error'])} | {validation} | {fmt(row['test_error'])} | {goals} | {seconds} | {held_out} | {row['closed_loop_engine']} | {forward} |"
         )
     return "\n".join(lines)
 

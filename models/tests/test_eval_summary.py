@@ -11,11 +11,13 @@ def test_a_summary_keeps_outcomes_and_measures_the_paths(tmp_path):
     # The ball starts at x = 2 (target goal at +4.5), the robot walks 3 m and pushes it 1 m on.
     robot = [[-1.0, 0.0], [0.0, 0.0], [2.0, 0.0]]
     ball = [[2.0, 0.0], [2.0, 0.0], [3.0, 0.0]]
-    trajectories = {"episodes": [episode(7, "time_limit", robot, ball)]}
+    trajectories = {"engine": "compiled (avx2+fma)", "episodes": [episode(7, "time_limit", robot, ball)]}
     source, target = tmp_path / "paths.json", tmp_path / "summary.json"
     source.write_text(json.dumps(trajectories))
     assert eval_summary.main([str(source), str(target)]) == 0
-    (summary,) = json.loads(target.read_text())["episodes"]
+    written = json.loads(target.read_text())
+    assert written["engine"] == "compiled (avx2+fma)"
+    (summary,) = written["episodes"]
     assert summary["seed"] == 7 and summary["outcome"] == "time_limit"
     assert summary["walked_m"] == 3.0
     assert summary["closest_to_ball_m"] == 1.0
@@ -39,3 +41,10 @@ def test_a_file_that_is_not_an_evaluation_is_refused(tmp_path, capsys):
     source.write_text('{"something": []}')
     assert eval_summary.main([str(source), str(tmp_path / "out.json")]) == 2
     assert "not a `dribble eval --trajectories` file" in capsys.readouterr().err
+
+
+def test_files_from_before_the_engine_was_recorded_summarise_without_one(tmp_path):
+    source, target = tmp_path / "paths.json", tmp_path / "summary.json"
+    source.write_text(json.dumps({"episodes": [episode(3, "goal", [[0.0, 0.0]], [[4.5, 0.0]])]}))
+    assert eval_summary.main([str(source), str(target)]) == 0
+    assert json.loads(target.read_text())["engine"] is None
