@@ -19,6 +19,8 @@ mod lower;
 mod plan;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod simd;
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+mod window_asm;
 
 use std::path::{Path, PathBuf};
 

@@ -34,9 +34,10 @@ pub(crate) trait Vector: Copy {
     /// `values` must point at four readable floats.
     unsafe fn splat4(values: *const f32) -> [Self; 4];
     /// A kernel window of a single pixel into four vectors of output channels: `rows` rows
-    /// of `taps` consecutive inputs, `x_row` floats apart, the weights of tap `t` of row `r`
-    /// at `w[(r * taps + t) * w_stride ..]`; `acc[v] += x * w[.. + v * LANES]` tap by tap in
-    /// that order. Returns false, having done nothing, where the set has no such kernel.
+    /// of `pixels * channels` consecutive inputs (`taps` a row), `x_row` floats apart, the
+    /// weights of tap `t` of row `r` at `w[(r * taps + t) * w_stride ..]`;
+    /// `acc[v] += x * w[.. + v * LANES]` tap by tap in that order. Returns false, having done
+    /// nothing, where the set has no such kernel.
     ///
     /// # Safety
     /// `x` must point at `rows` rows of `taps` readable floats, `x_row` floats apart, and `w`
@@ -48,7 +49,7 @@ pub(crate) trait Vector: Copy {
         _x: *const f32,
         _x_row: usize,
         _w: *const f32,
-        [_rows, _taps]: [usize; 2],
+        [_rows, _pixels, _channels]: [usize; 3],
         _w_stride: usize,
     ) -> bool {
         false
@@ -89,6 +90,10 @@ impl Vector for Sse {
     /// convolution's instructions were spills and reloads), and spends as many again on
     /// each short row's loop. The arithmetic and its order are those of the intrinsics:
     /// `mulps`, then `addps`, tap by tap.
+    ///
+    /// The networks' own layouts (the first layer's 5x5 window of one channel, the second
+    /// layers' windows of 8- and 16-channel pixels) go to [`super::window_asm`], which
+    /// writes the weight offsets into the instructions; this loop takes the rest.
     #[cfg(target_arch = "x86")]
     #[inline(always)]
     unsafe fn window_of_taps4(
@@ -96,13 +101,29 @@ impl Vector for Sse {
         x: *const f32,
         x_row: usize,
         w: *const f32,
-        [rows, taps]: [usize; 2],
+        [rows, pixels, channels]: [usize; 3],
         w_stride: usize,
     ) -> bool {
+        use super::window_asm::{window_5x5_one_channel_16, window_of_pixels};
         if rows == 0 {
             return true;
         }
-        let [mut a0, mut a1, mut a2, mut a3] = acc.map(|a| a.0);
+        let mut vectors = acc.map(|a| a.0);
+        let layout = [rows, pixels, channels];
+        let done = if [rows, pixels, channels, w_stride] == [5, 5, 1, 16] {
+            // SAFETY: the caller's promise, which is this specialisation's for these sizes.
+            unsafe { window_5x5_one_channel_16(&mut vectors, x, x_row, w) };
+            true
+        } else {
+            // SAFETY: the caller's promise, which is this specialisation's own.
+            unsafe { window_of_pixels(&mut vectors, x, x_row, w, layout, w_stride) }
+        };
+        if done {
+            *acc = vectors.map(Self);
+            return true;
+        }
+        let taps = pixels * channels;
+        let [mut a0, mut a1, mut a2, mut a3] = vectors;
         // Quads and single taps a row, bytes from a row's end to the next row's start, rows
         // left (counted down by the loop), bytes from one tap's weights to the next.
         let mut counts: [usize; 5] = [
@@ -488,7 +509,7 @@ fn conv_block<V: Vector, const VECS: usize, const P: usize, const IC: usize, con
                 padded.as_ptr().add(oy * sy * row + first),
                 row,
                 weights.as_ptr().add(channels),
-                [kh, kw * ic],
+                [kh, kw, ic],
                 oc,
             )
         } {
