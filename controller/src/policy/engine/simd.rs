@@ -104,21 +104,21 @@ impl Vector for Sse {
         [rows, pixels, channels]: [usize; 3],
         w_stride: usize,
     ) -> bool {
-        use super::window_asm::{window_5x5_one_channel_16, window_of_pixels};
         if rows == 0 {
             return true;
         }
         let mut vectors = acc.map(|a| a.0);
-        let layout = [rows, pixels, channels];
-        let done = if [rows, pixels, channels, w_stride] == [5, 5, 1, 16] {
-            // SAFETY: the caller's promise, which is this specialisation's for these sizes.
-            unsafe { window_5x5_one_channel_16(&mut vectors, x, x_row, w) };
-            true
-        } else {
-            // SAFETY: the caller's promise, which is this specialisation's own.
-            unsafe { window_of_pixels(&mut vectors, x, x_row, w, layout, w_stride) }
-        };
-        if done {
+        // SAFETY: the caller's promise, which is `window`'s for every layout it takes.
+        if unsafe {
+            super::window_asm::window(
+                &mut vectors,
+                x,
+                x_row,
+                w,
+                [rows, pixels, channels],
+                w_stride,
+            )
+        } {
             *acc = vectors.map(Self);
             return true;
         }

@@ -104,6 +104,31 @@ macro_rules! row_of_five {
     };
 }
 
+/// The window of one output pixel for the layouts written out here: `rows` rows of `pixels`
+/// input pixels of `channels` channels, `x_row` floats apart, into 16 output channels of a
+/// layer with `w_stride` output channels (the contract of `Vector::window_of_taps4`). Returns
+/// false, having done nothing, for a layout that is not one of them.
+///
+/// # Safety
+/// As [`window_5x5_one_channel_16`] or [`window_of_pixels`] for the layout given.
+#[inline(always)]
+pub(crate) unsafe fn window(
+    acc: &mut [__m128; 4],
+    x: *const f32,
+    x_row: usize,
+    w: *const f32,
+    layout @ [rows, pixels, channels]: [usize; 3],
+    w_stride: usize,
+) -> bool {
+    if [rows, pixels, channels, w_stride] == [5, 5, 1, 16] {
+        // SAFETY: the caller's promise for this layout.
+        unsafe { window_5x5_one_channel_16(acc, x, x_row, w) };
+        return true;
+    }
+    // SAFETY: the caller's promise for this layout.
+    unsafe { window_of_pixels(acc, x, x_row, w, layout, w_stride) }
+}
+
 /// `acc[v] += x * w[..]` over a 5x5 window of one input channel into 16 output channels:
 /// tap `t = 5 * row + column` reads the input `x[row * x_row + column]` and the weights
 /// `w[16 * t .. 16 * t + 16]`, taps in order.
@@ -286,7 +311,8 @@ mod tests {
         let start: [f32; 16] = values(3);
         let mut acc = to_vectors(&start);
         // SAFETY: 5 rows of 9 floats; 25 taps of 16 aligned weights.
-        unsafe { window_5x5_one_channel_16(&mut acc, x.as_ptr(), x_row, w.0.as_ptr()) };
+        let done = unsafe { window(&mut acc, x.as_ptr(), x_row, w.0.as_ptr(), [5, 5, 1], 16) };
+        assert!(done);
         let taps = (0..25).map(|t| (x[(t / 5) * x_row + t % 5], 16 * t));
         let expected = reference(&start, taps, &w.0);
         assert_eq!(
@@ -303,7 +329,7 @@ mod tests {
         let mut acc = to_vectors(&start);
         // Inside the arrays: rows of x_row floats, 25 * channels taps of w_stride floats.
         let done = unsafe {
-            window_of_pixels(
+            window(
                 &mut acc,
                 x.as_ptr(),
                 x_row,
@@ -339,8 +365,7 @@ mod tests {
         let w = Aligned::<64>([0.0; 64]);
         let x = [0.0f32; 4];
         // SAFETY: refused before anything is read.
-        let done =
-            unsafe { window_of_pixels(&mut acc, x.as_ptr(), 4, w.0.as_ptr(), [1, 1, 4], 16) };
+        let done = unsafe { window(&mut acc, x.as_ptr(), 4, w.0.as_ptr(), [1, 1, 4], 16) };
         assert!(!done);
     }
 }
