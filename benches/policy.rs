@@ -3,6 +3,10 @@
 //! where that is wider still, the Nao V6's SSE4.2 and the V5's SSSE3) and on tract. Whole ticks with a real policy are in
 //! `benches/tick.rs`.
 //!
+//! Each compiled engine's step also prints its floor: the network's multiply-adds at this
+//! core's arithmetic peak for the set, measured when the run starts
+//! (`policy::engine::peak`), so a figure reads as a fraction of what the machine allows.
+//!
 //! tract chooses its kernels once per process from `TRACT_CPU_ISA`, so its SSE-only figures
 //! come from a second run of this benchmark that it starts itself with
 //! `TRACT_CPU_ISA=-avx,-avx2,-fma,-f16c,-avx512f` (group "tract SSE only"); both runs'
@@ -14,6 +18,7 @@ use std::process::Command;
 
 use criterion::Criterion;
 use dribble_controller::policy::engine::Isa;
+use dribble_controller::policy::engine::peak::multiply_adds_per_second;
 use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::thumbnail::downscale;
@@ -72,8 +77,20 @@ fn policies(c: &mut Criterion) {
 
     for (label, engine, isa) in engines() {
         let mut group = c.benchmark_group(format!("policy step/{label}"));
+        let peak = isa.and_then(multiply_adds_per_second);
         for (name, kind) in [("CNN", "cnn"), ("H-CNN", "hcnn"), ("R-CNN", "rcnn")] {
             let mut policy = load(kind, engine, isa);
+            // The floor no kernel goes below: this step's multiply-adds at this core's
+            // measured peak for the set (compare with criterion's figure below it).
+            if let (Some(peak), Some(multiply_adds)) = (peak, policy.engine().multiply_adds) {
+                println!(
+                    "policy step/{label}/{name}: {:.2} M multiply-adds, at least {:.1} µs at \
+                     this core's measured peak of {:.1} G a second",
+                    multiply_adds as f64 / 1e6,
+                    multiply_adds as f64 / peak * 1e6,
+                    peak / 1e9
+                );
+            }
             group.bench_function(name, |b| {
                 b.iter(|| {
                     let input = PolicyInput {

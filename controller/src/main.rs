@@ -1,12 +1,13 @@
 //! `dribble-controller`: the robot process.
 
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use dribble_controller::log_output::{self, LogFormat};
 use dribble_controller::policy::engine::Isa;
+use dribble_controller::policy::engine::peak::multiply_adds_per_second;
 use dribble_controller::policy::file_watch::PolicyFileWatch;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
@@ -14,6 +15,7 @@ use dribble_controller::policy::{Engine, EngineOptions};
 use dribble_controller::realtime::{self, RealtimeRequest};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::thumbnail::downscale;
+use dribble_controller::tick_stats::TickStats;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts};
 use dribble_controller::transport::{ControllerNode, NodeCounters, NodeEvent};
 use dribble_controller::{
@@ -150,9 +152,13 @@ enum Command {
         #[command(flatten)]
         realtime: RealtimeArgs,
     },
-    /// Runs a policy's forward pass `--steps` times on the test pattern's thumbnails and
-    /// exits: the workload for instruction counts (`cross/count` runs it under callgrind
-    /// with 1 and with 11 steps; the difference is ten forward passes).
+    /// Runs a policy's forward pass `--steps` times on the test pattern's thumbnails, prints
+    /// the time per pass (min, median, p99, max, against the tick of `--rate-hz`) and, on the
+    /// compiled engine, how near the fastest pass came to this core's measured arithmetic
+    /// peak, and exits:
+    /// a quick speed check on the robot itself, where no benchmark harness runs, and the
+    /// workload for instruction counts (`cross/count` runs it under callgrind with 1 and
+    /// with 11 steps; the difference is ten forward passes).
     Forward {
         /// A learned policy's manifest (`policy.toml`).
         #[arg(long)]
@@ -200,7 +206,7 @@ fn main() -> anyhow::Result<()> {
             }
             result
         }
-        Command::Forward { policy, steps } => forward(&policy, steps, options),
+        Command::Forward { policy, steps } => forward(&policy, steps, options, config.tick_period),
         Command::DryRun {
             policy,
             seconds,
@@ -221,6 +227,10 @@ fn load_policy(manifest: Option<&Path>, options: EngineOptions) -> anyhow::Resul
         println!("policy: brightness test policy");
         return Ok(Box::new(BrightnessPolicy::default()));
     };
+    Ok(Box::new(load_learned_policy(manifest, options)?))
+}
+
+fn load_learned_policy(manifest: &Path, options: EngineOptions) -> anyhow::Result<OnnxPolicy> {
     let (policy, manifest) = OnnxPolicy::load_with(manifest, options)?;
     println!(
         "policy: {} from {} ({} network file(s), trained on {:?}), engine {}",
@@ -230,7 +240,7 @@ fn load_policy(manifest: Option<&Path>, options: EngineOptions) -> anyhow::Resul
         manifest.training.dataset,
         policy.engine()
     );
-    Ok(Box::new(policy))
+    Ok(policy)
 }
 
 /// The files a loaded policy came from: its manifest and its network files.
@@ -336,8 +346,13 @@ fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(
     result.context("the transport failed")
 }
 
-fn forward(manifest: &Path, steps: u32, options: EngineOptions) -> anyhow::Result<()> {
-    let mut policy = load_policy(Some(manifest), options)?;
+fn forward(
+    manifest: &Path,
+    steps: u32,
+    options: EngineOptions,
+    budget: Duration,
+) -> anyhow::Result<()> {
+    let mut policy = load_learned_policy(manifest, options)?;
     let pattern = TestPattern::default();
     let (mut top_frame, mut bottom_frame) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
     let (mut top, mut bottom) = (
@@ -348,14 +363,38 @@ fn forward(manifest: &Path, steps: u32, options: EngineOptions) -> anyhow::Resul
     pattern.paint(&mut bottom_frame, 0, Timestamp::ZERO);
     downscale(&top_frame, &mut top);
     downscale(&bottom_frame, &mut bottom);
+    // Measured before the passes, on an idle core (see `peak`).
+    let peak = policy.engine().compiled.and_then(multiply_adds_per_second);
     let mut last = None;
+    let mut times = TickStats::new(budget);
     for _ in 0..steps {
+        let start = Instant::now();
         last = Some(policy.step(PolicyInput {
             top: &top,
             bottom: &bottom,
         })?);
+        times.record(start.elapsed());
     }
     println!("{steps} forward pass(es); last command {last:?}");
+    let Some(summary) = times.summary() else {
+        return Ok(());
+    };
+    // The minimum is the figure to compare builds by on a shared machine: other processes
+    // only ever add to a pass's time.
+    println!("time per pass: {summary}");
+    let report = policy.engine();
+    if let (Some(isa), Some(multiply_adds), Some(peak)) =
+        (report.compiled, report.multiply_adds, peak)
+    {
+        let bound = Duration::from_secs_f64(multiply_adds as f64 / peak);
+        println!(
+            "{:.2} M multiply-adds a pass; this core's measured {isa} peak, {:.1} G a second, \
+             bounds a pass at {bound:.1?}: the fastest pass ran at {:.0} % of it",
+            multiply_adds as f64 / 1e6,
+            peak / 1e9,
+            100.0 * bound.as_secs_f64() / summary.min.as_secs_f64(),
+        );
+    }
     Ok(())
 }
 

@@ -64,6 +64,9 @@ pub struct EngineReport {
     pub compiled: Option<Isa>,
     /// Why tract runs a network although the compiled engine was asked for.
     pub fallback: Option<String>,
+    /// The multiply-adds of the network one step runs, where the compiled engine runs it
+    /// (its count of a lowered plan; tract's plan is not counted).
+    pub multiply_adds: Option<u64>,
 }
 
 impl std::fmt::Display for EngineReport {
@@ -225,6 +228,7 @@ impl Network {
                     let report = EngineReport {
                         compiled: Some(isa),
                         fallback: None,
+                        multiply_adds: Some(compiled.multiply_adds()),
                     };
                     let network = Self::Compiled {
                         network: Box::new(compiled),
@@ -262,6 +266,7 @@ impl Network {
             EngineReport {
                 compiled: None,
                 fallback,
+                multiply_adds: None,
             },
         ))
     }
@@ -417,6 +422,7 @@ impl HcnnPolicy {
         let mut report = EngineReport {
             compiled: None,
             fallback: None,
+            multiply_adds: None,
         };
         for (index, path) in manifest.network_paths().enumerate() {
             let (network, own) = Network::load(manifest, &path, names.clone(), options)?;

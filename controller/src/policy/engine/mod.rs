@@ -16,6 +16,7 @@
 pub mod isa;
 mod kernels;
 mod lower;
+pub mod peak;
 mod plan;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod simd;
@@ -140,8 +141,15 @@ impl CompiledNetwork {
         self.steps.len()
     }
 
-    /// Wall time of each step over `repeats` runs, for profiling (allocates its report).
-    pub fn profile(&mut self, repeats: u32) -> Vec<(String, std::time::Duration)> {
+    /// The multiply-adds of one run: the arithmetic that bounds its time from below (see
+    /// [`peak`]).
+    pub fn multiply_adds(&self) -> u64 {
+        self.steps.iter().map(Step::multiply_adds).sum()
+    }
+
+    /// Wall time of each step over `repeats` runs and its multiply-adds, for profiling
+    /// (allocates its report).
+    pub fn profile(&mut self, repeats: u32) -> Vec<(String, std::time::Duration, u64)> {
         let mut report = Vec::new();
         for i in 0..self.steps.len() {
             let started = std::time::Instant::now();
@@ -154,7 +162,11 @@ impl CompiledNetwork {
                 );
             }
             let name = format!("{:?}", self.steps[i]).chars().take(60).collect();
-            report.push((name, started.elapsed() / repeats));
+            report.push((
+                name,
+                started.elapsed() / repeats,
+                self.steps[i].multiply_adds(),
+            ));
         }
         report
     }
@@ -398,6 +410,22 @@ mod tests {
     }
 
     #[test]
+    fn the_cnn_fixture_counts_the_multiply_adds_of_the_papers_layers() {
+        let (path, proto) = cnn_fixture();
+        let graph = proto.graph.as_ref().expect("graph");
+        let network =
+            CompiledNetwork::lower(&path, graph, &CNN_INPUTS, Isa::Portable).expect("lowers");
+        // Output pixels times a 5x5 window times input and output channels, per layer. The
+        // top camera's second convolution has 15 rows, of which its 2x2 pool reads 14: the
+        // fifteenth is never computed, and not counted.
+        let top = 60 * 80 * 25 * 16 + 14 * 20 * 25 * 16 * 32;
+        let bottom = 30 * 40 * 25 * 8 + 8 * 10 * 25 * 8 * 16;
+        let head = 2560 * 128 + 128 * 3;
+        assert_eq!(network.multiply_adds(), top + bottom + head);
+        assert_eq!(network.multiply_adds(), 6_328_064);
+    }
+
+    #[test]
     #[ignore = "profiling aid: cargo test --release -p dribble-controller profile -- --ignored --nocapture"]
     fn profile_the_cnn_fixture() {
         let (path, proto) = cnn_fixture();
@@ -406,10 +434,19 @@ mod tests {
             let mut network =
                 CompiledNetwork::lower(&path, graph, &CNN_INPUTS, isa).expect("lowers");
             let report = network.profile(200);
-            let total: std::time::Duration = report.iter().map(|(_, t)| *t).sum();
-            println!("{isa}: {total:?}");
-            for (step, time) in report {
-                println!("  {time:>10?}  {step}");
+            let total: std::time::Duration = report.iter().map(|(_, t, _)| *t).sum();
+            let peak = peak::multiply_adds_per_second(isa);
+            let share = |macs: u64, time: std::time::Duration| {
+                peak.map_or(String::new(), |peak| {
+                    format!("{:5.1} %", 100.0 * macs as f64 / peak / time.as_secs_f64())
+                })
+            };
+            println!(
+                "{isa}: {total:?}, {} of the measured peak",
+                share(network.multiply_adds(), total)
+            );
+            for (step, time, macs) in report {
+                println!("  {time:>10?} {:>8} {step}", share(macs, time));
             }
         }
     }
