@@ -144,23 +144,63 @@ impl EpisodeRecording {
     }
 }
 
-/// A `.npy` (format 1.0, through `npyz`) holding `values` in `shape`, C order, with the
-/// element type NumPy uses for `T` (`|u1`, `<f4`, `<f8`).
+/// A `.npy` holding `values` in `shape`, C order, with the element type NumPy uses for `T`
+/// (`|u1`, `<f4`, `<f8`): byte for byte what NumPy's `np.save` writes (format 1.0, its
+/// header with the spare room it leaves to grow the first axis, spaces up to a multiple of
+/// 64 bytes, a newline).
+///
+/// `npyz` encodes the values and names their type; its own header is not used, because it
+/// lays the shape out its own way (`(3, 4, )`, padded to 16 bytes) and an episode file's
+/// SHA-256 is the dataset's identity: the shipped models' manifests name their training and
+/// test data by hashes of files with NumPy's header, so a recording made today must give
+/// the same bytes for the same episode.
 fn npy<T: npyz::AutoSerialize + Copy>(shape: &[usize], values: &[T]) -> Vec<u8> {
     debug_assert_eq!(shape.iter().product::<usize>(), values.len());
-    let shape: Vec<u64> = shape.iter().map(|&n| n as u64).collect();
-    let mut bytes = Vec::new();
+    let mut encoded = Vec::new();
     // Writing to memory cannot fail, and the shape holds exactly the values given.
     let written = npyz::WriteOptions::new()
         .default_dtype()
-        .shape(&shape)
-        .writer(&mut bytes)
+        .shape(&shape.iter().map(|&n| n as u64).collect::<Vec<_>>())
+        .writer(&mut encoded)
         .begin_nd()
         .and_then(|mut writer| {
             writer.extend(values.iter().copied())?;
             writer.finish()
         });
     debug_assert!(written.is_ok(), "{written:?}");
+    // The values follow npyz's header: its length is at bytes 8..10 in format 1.0 and at
+    // 8..12 in the later ones (which it chooses only for headers over 64 KiB).
+    let data = match encoded.get(6..12) {
+        Some(&[1, _, a, b, ..]) => 10 + usize::from(u16::from_le_bytes([a, b])),
+        Some(&[_, _, a, b, c, d]) => 12 + u32::from_le_bytes([a, b, c, d]) as usize,
+        _ => encoded.len(),
+    };
+    let dims = match shape {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let descr = T::default_dtype().descr();
+    let mut header = format!("{{'descr': {descr}, 'fortran_order': False, 'shape': {dims}, }}");
+    // NumPy's room to grow the first axis in place: up to 21 digits in all.
+    if let Some(first) = shape.first() {
+        header.push_str(&" ".repeat(21usize.saturating_sub(first.to_string().len())));
+    }
+    // Magic (6) + version (2) + length (2) + header, padded with spaces to 64 bytes, then \n.
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + encoded.len() - data);
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend_from_slice(encoded.get(data..).unwrap_or_default());
     bytes
 }
 
@@ -467,6 +507,29 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn npy_files_are_those_numpy_writes() {
+        // `np.save` of NumPy 2.4 for zeros of these shapes and types, header and values.
+        let header = |text: &str| {
+            let mut bytes = b"\x93NUMPY\x01\x00v\x00".to_vec();
+            bytes.extend_from_slice(format!("{text:<117}\n").as_bytes());
+            bytes
+        };
+        let mut f32s = header("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }");
+        f32s.extend_from_slice(&[0; 24]);
+        assert_eq!(npy(&[2, 3], &[0.0f32; 6]), f32s);
+        let mut f64s = header("{'descr': '<f8', 'fortran_order': False, 'shape': (5,), }");
+        f64s.extend_from_slice(&[0; 40]);
+        assert_eq!(npy(&[5], &[0.0f64; 5]), f64s);
+        let mut pixels =
+            header("{'descr': '|u1', 'fortran_order': False, 'shape': (7, 120, 160), }");
+        pixels.extend_from_slice(&[0; 7 * 120 * 160]);
+        assert_eq!(npy(&[7, 120, 160], &[0u8; 7 * 120 * 160]), pixels);
+        // Values are written as they are, little-endian.
+        let one = npy(&[1], &[1.5f32]);
+        assert_eq!(one[one.len() - 4..], 1.5f32.to_le_bytes());
+    }
 
     #[test]
     fn npy_headers_are_64_byte_aligned_and_parse_back() {
