@@ -25,7 +25,7 @@ use serde_json::json;
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
 use crate::foxglove_episodes::FoxgloveArgs;
-use crate::trajectory_plot::plot_trajectories;
+use crate::trajectory_plot::{plot_trajectories, title};
 
 #[derive(Debug, Args)]
 pub struct EvalArgs {
@@ -184,22 +184,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         };
         println!("{what}: {summary}");
     }
-    let driver_name = match &policy_path {
-        Some(path) => format!("policy {}", path.display()),
-        None => "the scripted expert".to_owned(),
-    };
-    let seeds = match (results.first(), results.last()) {
-        (Some(first), Some(last)) => {
-            format!(", seeds {}..{}", first.setup.seed, last.setup.seed)
-        }
-        _ => String::new(),
-    };
-    let title = format!(
-        "{driver_name}: {} of {} goals{seeds}",
-        goals.len(),
-        results.len()
-    );
-    plot_trajectories(&results, &title, &args.plot)?;
+    plot_trajectories(&results, &title(&args.driver, &results), &args.plot)?;
     println!("trajectory plot: {}", args.plot.display());
     if let (Some(foxglove), Some(dir)) = (&foxglove, &args.foxglove.mcap) {
         println!(

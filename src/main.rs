@@ -6,6 +6,7 @@ mod episodes;
 mod eval_command;
 mod foxglove_episodes;
 mod inspect_command;
+mod plot_command;
 mod plot_image;
 mod record_command;
 mod render_command;
@@ -44,6 +45,9 @@ enum Command {
     /// episode, the outcome, the time and the distance walked; then the goal count, the
     /// controller's latency, and writes a trajectory plot.
     Eval(eval_command::EvalArgs),
+    /// Draws the trajectory figure again from the JSON `dribble eval --trajectories` wrote,
+    /// without playing the episodes again.
+    Plot(plot_command::PlotArgs),
     /// Records demonstrations: the cameras are rendered, every computed command is stored
     /// with the thumbnails it came from, one .npz per episode plus dataset.json. The expert
     /// drives, or a learned policy drives and the expert labels every state it visits
@@ -70,6 +74,7 @@ fn main() -> anyhow::Result<()> {
         Command::Thumbnail(args) => thumbnail_command::run(&args),
         Command::Render(args) => render_command::run(&args),
         Command::Eval(args) => eval_command::run(&args),
+        Command::Plot(args) => plot_command::run(&args),
         Command::Record(args) => record_command::run(&args),
         Command::Inspect(args) => inspect_command::run(&args),
         Command::Score(args) => score_command::run(&args),

@@ -62,6 +62,26 @@ fn label(result: &EpisodeResult) -> String {
     }
 }
 
+/// The figure's title: who drove (`driver` as `dribble eval --driver` takes it: `expert`
+/// or a policy's `policy.toml`), the goals and the seeds.
+pub fn title(driver: &str, results: &[EpisodeResult]) -> String {
+    let driver = match driver {
+        "expert" => "the scripted expert".to_owned(),
+        policy => format!("policy {policy}"),
+    };
+    let goals = results
+        .iter()
+        .filter(|r| r.outcome == Outcome::Goal)
+        .count();
+    let seeds = match (results.first(), results.last()) {
+        (Some(first), Some(last)) => {
+            format!(", seeds {}..{}", first.setup.seed, last.setup.seed)
+        }
+        _ => String::new(),
+    };
+    format!("{driver}: {goals} of {} goals{seeds}", results.len())
+}
+
 /// Points around a circle, closed.
 fn ring(centre: Vec2, radius: f32) -> Vec<(f32, f32)> {
     (0..=48)
@@ -82,9 +102,15 @@ pub fn plot_trajectories(
     path: &Path,
 ) -> anyhow::Result<()> {
     let field = FieldGeometry::SPL;
-    let half = Vec2::new(
+    let carpet = Vec2::new(
         field.length / 2.0 + field.border,
         field.width / 2.0 + field.border,
+    );
+    let half = view_half_extent(
+        results
+            .iter()
+            .flat_map(|r| r.robot_path.iter().chain(&r.ball_path)),
+        carpet,
     );
     let plot_width = (2.0 * half.x * SCALE).round() as u32;
     let plot_height = (2.0 * half.y * SCALE).round() as u32;
@@ -116,7 +142,7 @@ pub fn plot_trajectories(
             .label_style((FONT, 15))
             .axis_desc_style((FONT, 17))
             .draw()?;
-        draw_field(&mut chart, &field, half)?;
+        draw_field(&mut chart, &field, carpet)?;
         for (i, result) in results.iter().enumerate() {
             draw_episode(&mut chart, result, colour(i))?;
         }
@@ -149,14 +175,26 @@ type FieldChart<'a, 'b> = ChartContext<
     Cartesian2d<plotters::coord::types::RangedCoordf32, plotters::coord::types::RangedCoordf32>,
 >;
 
-/// Carpet, lines (boundary, centre line and circle, goal and penalty areas) and goals.
+/// Half the width and height of the area plotted: the carpet's (`carpet`), grown to take in
+/// every robot and ball position (`positions`) with a margin. plotters does not clip a path to the plotting
+/// area, so a robot that walked off the carpet would otherwise be drawn over the axes and
+/// into the figure's margins; now the figure shows the floor beyond the carpet, in white.
+fn view_half_extent<'a>(positions: impl Iterator<Item = &'a Vec2>, carpet: Vec2) -> Vec2 {
+    const MARGIN_M: f32 = 0.2;
+    positions
+        .filter(|p| p.is_finite())
+        .fold(carpet, |half, p| half.max(p.abs() + MARGIN_M))
+}
+
+/// Carpet (half its size `carpet`), lines (boundary, centre line and circle, goal and penalty
+/// areas) and goals.
 fn draw_field(
     chart: &mut FieldChart<'_, '_>,
     field: &FieldGeometry,
-    half: Vec2,
+    carpet: Vec2,
 ) -> anyhow::Result<()> {
     chart.draw_series([Rectangle::new(
-        [(-half.x, -half.y), (half.x, half.y)],
+        [(-carpet.x, -carpet.y), (carpet.x, carpet.y)],
         CARPET.filled(),
     )])?;
     let line = LINE.stroke_width(2);
@@ -221,4 +259,27 @@ fn draw_episode(
         ])?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_view_is_the_carpet_until_a_path_leaves_it() {
+        let carpet = Vec2::new(5.2, 3.7);
+        let inside = [Vec2::new(-5.0, 3.0), Vec2::new(0.0, -3.4)];
+        assert_eq!(view_half_extent(inside.iter(), carpet), carpet);
+        // A robot 6 m from the centre line and 4.1 m to the right: the view takes it in,
+        // with the margin, on every side (the field stays centred).
+        let off = [Vec2::new(0.0, 0.0), Vec2::new(-6.0, -4.1)];
+        let half = view_half_extent(off.iter(), carpet);
+        assert!(
+            (half.x - 6.2).abs() < 1e-5 && (half.y - 4.3).abs() < 1e-5,
+            "{half}"
+        );
+        // A position that is not a number does not blow the view up.
+        let broken = [Vec2::new(f32::NAN, 1.0)];
+        assert_eq!(view_half_extent(broken.iter(), carpet), carpet);
+    }
 }
