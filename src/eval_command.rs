@@ -7,7 +7,7 @@
 //! in a thread over channels. The scripted expert reads ground truth, so it always runs
 //! inside the simulator.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
@@ -20,11 +20,11 @@ use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::render::Renderer;
 use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, run_episode_observed};
-use serde_json::json;
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
 use crate::foxglove_episodes::FoxgloveArgs;
+use crate::trajectory_file::write_trajectories;
 use crate::trajectory_plot::{plot_trajectories, title};
 
 #[derive(Debug, Args)]
@@ -198,32 +198,6 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         println!("trajectories: {}", path.display());
     }
     Ok(())
-}
-
-/// The episodes' outcomes and 10 Hz paths as JSON, with the engine that ran the policy
-/// (`null` for the expert, or a controller this run joined).
-fn write_trajectories(
-    results: &[EpisodeResult],
-    engine: Option<&str>,
-    path: &Path,
-) -> anyhow::Result<()> {
-    let points = |path: &[glam::Vec2]| path.iter().map(|p| [p.x, p.y]).collect::<Vec<_>>();
-    let episodes: Vec<_> = results
-        .iter()
-        .map(|r| {
-            json!({
-                "seed": r.setup.seed,
-                "outcome": r.outcome,
-                "duration_s": r.duration_s,
-                "computed_commands": r.computed_commands,
-                "failure": r.failure,
-                "robot": points(&r.robot_path),
-                "ball": points(&r.ball_path),
-            })
-        })
-        .collect();
-    let text = serde_json::to_string(&json!({ "engine": engine, "episodes": episodes }))?;
-    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
 fn median(values: &[f32]) -> Option<f32> {

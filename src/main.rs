@@ -14,6 +14,7 @@ mod score_command;
 mod soak_command;
 mod soak_faults;
 mod thumbnail_command;
+mod trajectory_file;
 mod trajectory_plot;
 
 use clap::{Parser, Subcommand};

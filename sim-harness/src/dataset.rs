@@ -15,7 +15,6 @@ use std::io::{Cursor, Read, Write};
 use std::path::{Path, PathBuf};
 
 use dribble_controller::{BottomThumbnail, SpeedCommand, TopThumbnail};
-use npyz::WriterBuilder as _;
 use serde::{Deserialize, Serialize};
 
 use crate::expert::Phase;
@@ -149,32 +148,15 @@ impl EpisodeRecording {
 /// header with the spare room it leaves to grow the first axis, spaces up to a multiple of
 /// 64 bytes, a newline).
 ///
-/// `npyz` encodes the values and names their type; its own header is not used, because it
+/// `npyz` encodes the values and names their type; its file writer is not used, because it
 /// lays the shape out its own way (`(3, 4, )`, padded to 16 bytes) and an episode file's
 /// SHA-256 is the dataset's identity: the shipped models' manifests name their training and
 /// test data by hashes of files with NumPy's header, so a recording made today must give
 /// the same bytes for the same episode.
-fn npy<T: npyz::AutoSerialize + Copy>(shape: &[usize], values: &[T]) -> Vec<u8> {
+fn npy<T: npyz::AutoSerialize>(shape: &[usize], values: &[T]) -> Vec<u8> {
+    use npyz::TypeWrite as _;
     debug_assert_eq!(shape.iter().product::<usize>(), values.len());
-    let mut encoded = Vec::new();
-    // Writing to memory cannot fail, and the shape holds exactly the values given.
-    let written = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&shape.iter().map(|&n| n as u64).collect::<Vec<_>>())
-        .writer(&mut encoded)
-        .begin_nd()
-        .and_then(|mut writer| {
-            writer.extend(values.iter().copied())?;
-            writer.finish()
-        });
-    debug_assert!(written.is_ok(), "{written:?}");
-    // The values follow npyz's header: its length is at bytes 8..10 in format 1.0 and at
-    // 8..12 in the later ones (which it chooses only for headers over 64 KiB).
-    let data = match encoded.get(6..12) {
-        Some(&[1, _, a, b, ..]) => 10 + usize::from(u16::from_le_bytes([a, b])),
-        Some(&[_, _, a, b, c, d]) => 12 + u32::from_le_bytes([a, b, c, d]) as usize,
-        _ => encoded.len(),
-    };
+    let dtype = T::default_dtype();
     let dims = match shape {
         [n] => format!("({n},)"),
         _ => format!(
@@ -186,7 +168,7 @@ fn npy<T: npyz::AutoSerialize + Copy>(shape: &[usize], values: &[T]) -> Vec<u8> 
                 .join(", ")
         ),
     };
-    let descr = T::default_dtype().descr();
+    let descr = dtype.descr();
     let mut header = format!("{{'descr': {descr}, 'fortran_order': False, 'shape': {dims}, }}");
     // NumPy's room to grow the first axis in place: up to 21 digits in all.
     if let Some(first) = shape.first() {
@@ -196,11 +178,17 @@ fn npy<T: npyz::AutoSerialize + Copy>(shape: &[usize], values: &[T]) -> Vec<u8> 
     let unpadded = 10 + header.len() + 1;
     header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
     header.push('\n');
-    let mut bytes = Vec::with_capacity(10 + header.len() + encoded.len() - data);
+    let mut bytes = Vec::with_capacity(10 + header.len() + size_of_val(values));
     bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
     bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
     bytes.extend_from_slice(header.as_bytes());
-    bytes.extend_from_slice(encoded.get(data..).unwrap_or_default());
+    // A type's own default dtype always has a writer, and writing to memory cannot fail.
+    let written = T::writer(&dtype).map(|writer| {
+        for value in values {
+            let _ = writer.write_one(&mut bytes, value);
+        }
+    });
+    debug_assert!(written.is_ok(), "{written:?}");
     bytes
 }
 

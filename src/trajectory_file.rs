@@ -1,0 +1,167 @@
+//! The trajectories file of `dribble eval --trajectories`: every episode's outcome and 10 Hz
+//! robot and ball paths as JSON, with the engine that ran the policy (`null` for the expert,
+//! or a controller the run joined). Written by `eval`, read back by `dribble plot`; one
+//! definition for both, so that they cannot drift apart. (Fields in alphabetical order and
+//! the simulator's `f32`s widened to `f64`: the files come out byte for byte as they did when
+//! `serde_json::json!` wrote them.)
+
+use std::path::Path;
+
+use anyhow::{Context, bail};
+use dribble_controller::tick_stats::TickStats;
+use dribble_sim::dataset::Outcome;
+use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::runner::EpisodeResult;
+use glam::Vec2;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Deserialize, Serialize)]
+struct RecordedEpisode {
+    ball: Vec<[f64; 2]>,
+    computed_commands: u64,
+    duration_s: f64,
+    failure: Option<String>,
+    outcome: Outcome,
+    robot: Vec<[f64; 2]>,
+    seed: u64,
+}
+
+#[derive(Debug, Deserialize, Serialize)]
+struct RecordedEvaluation {
+    engine: Option<String>,
+    episodes: Vec<RecordedEpisode>,
+}
+
+/// Writes `results` and the engine that ran them to `path`.
+pub fn write_trajectories(
+    results: &[EpisodeResult],
+    engine: Option<&str>,
+    path: &Path,
+) -> anyhow::Result<()> {
+    let points = |path: &[Vec2]| path.iter().map(|p| [p.x.into(), p.y.into()]).collect();
+    let recorded = RecordedEvaluation {
+        engine: engine.map(str::to_owned),
+        episodes: results
+            .iter()
+            .map(|r| RecordedEpisode {
+                ball: points(&r.ball_path),
+                computed_commands: r.computed_commands,
+                duration_s: r.duration_s.into(),
+                failure: r.failure.clone(),
+                outcome: r.outcome,
+                robot: points(&r.robot_path),
+                seed: r.setup.seed,
+            })
+            .collect(),
+    };
+    let text = serde_json::to_string(&recorded)?;
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// The episodes of a trajectories file, as results to plot; each episode's start is its
+/// seed's ([`EpisodeSetup::from_seed`]), as in the run that wrote the file.
+pub fn read_trajectories(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    parse_trajectories(&text).with_context(|| {
+        format!(
+            "{} is not a trajectories file of `dribble eval --trajectories`",
+            path.display()
+        )
+    })
+}
+
+/// What the file does not keep, the distance walked and the tick times, is left empty.
+fn parse_trajectories(text: &str) -> anyhow::Result<Vec<EpisodeResult>> {
+    let recorded: RecordedEvaluation = serde_json::from_str(text)?;
+    if recorded.episodes.is_empty() {
+        bail!("it holds no episodes");
+    }
+    let points = |points: &[[f64; 2]]| {
+        points
+            .iter()
+            .map(|&[x, y]| Vec2::new(x as f32, y as f32))
+            .collect()
+    };
+    Ok(recorded
+        .episodes
+        .into_iter()
+        .map(|episode| EpisodeResult {
+            setup: EpisodeSetup::from_seed(episode.seed),
+            outcome: episode.outcome,
+            duration_s: episode.duration_s as f32,
+            distance_walked_m: 0.0,
+            robot_path: points(&episode.robot),
+            ball_path: points(&episode.ball),
+            computed_commands: episode.computed_commands,
+            tick_times: TickStats::new(std::time::Duration::from_millis(10)),
+            failure: episode.failure,
+            expert_executed: 0,
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trajectory_plot::title;
+
+    #[test]
+    fn episodes_come_back_with_their_seeds_starts() {
+        let results = parse_trajectories(
+            r#"{"engine": "compiled (avx2+fma)", "episodes": [
+                {"seed": 10003, "outcome": "goal", "duration_s": 41.5, "computed_commands": 1200,
+                 "failure": null, "robot": [[0.5, 1.0], [0.6, 1.1]], "ball": [[2.0, -1.0]]}]}"#,
+        )
+        .expect("parses");
+        assert_eq!(results.len(), 1);
+        let result = &results[0];
+        assert_eq!(result.setup, EpisodeSetup::from_seed(10_003));
+        assert_eq!(result.outcome, Outcome::Goal);
+        assert_eq!(result.duration_s, 41.5);
+        assert_eq!(
+            result.robot_path,
+            vec![Vec2::new(0.5, 1.0), Vec2::new(0.6, 1.1)]
+        );
+        assert_eq!(result.ball_path, vec![Vec2::new(2.0, -1.0)]);
+        assert_eq!(
+            title("expert", &results),
+            "the scripted expert: 1 of 1 goals, seeds 10003..10003"
+        );
+    }
+
+    #[test]
+    fn what_is_written_reads_back_and_is_what_json_macro_wrote() {
+        let path = std::env::temp_dir().join(format!("dribble-traj-{}.json", std::process::id()));
+        let mut results = parse_trajectories(
+            r#"{"engine": null, "episodes": [{"seed": 7, "outcome": "ball_out", "duration_s": 3.0,
+                "computed_commands": 90, "failure": null, "robot": [[0.0, 0.0]], "ball": [[1.0, 2.0]]}]}"#,
+        )
+        .expect("parses");
+        results[0].robot_path = vec![Vec2::new(0.1, -2.6696692)];
+        write_trajectories(&results, Some("compiled (avx2+fma)"), &path).expect("written");
+        let text = std::fs::read_to_string(&path).expect("read");
+        assert_eq!(
+            text,
+            serde_json::json!({"engine": "compiled (avx2+fma)", "episodes": [{
+                "seed": 7u64, "outcome": Outcome::BallOut, "duration_s": 3.0f32,
+                "computed_commands": 90u64, "failure": null,
+                "robot": [[0.1f32, -2.6696692f32]], "ball": [[1.0f32, 2.0f32]]}]})
+            .to_string()
+        );
+        let back = read_trajectories(&path).expect("reads");
+        assert_eq!(back[0].robot_path, results[0].robot_path);
+        let _ = std::fs::remove_file(&path);
+    }
+
+    #[test]
+    fn a_file_that_is_not_one_is_refused_with_its_name() {
+        let path = std::env::temp_dir().join(format!("dribble-plot-{}.json", std::process::id()));
+        for text in ["{\"episodes\": []}", "[1, 2]", "not json"] {
+            std::fs::write(&path, text).expect("written");
+            let error = format!("{:#}", read_trajectories(&path).expect_err(text));
+            assert!(error.contains(&path.display().to_string()), "{error}");
+        }
+        let _ = std::fs::remove_file(&path);
+    }
+}
