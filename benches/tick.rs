@@ -8,6 +8,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::{BrightnessPolicy, Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::{
@@ -15,9 +16,10 @@ use dribble_controller::{
     TopFrame,
 };
 
-fn cnn(engine: Engine) -> OnnxPolicy {
+/// The CNN fixture on `engine`, the compiled one on `isa` (`None`: the best this CPU runs).
+fn cnn(engine: Engine, isa: Option<Isa>) -> OnnxPolicy {
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/cnn/policy.toml");
-    OnnxPolicy::load_with(&manifest, EngineOptions { engine, isa: None })
+    OnnxPolicy::load_with(&manifest, EngineOptions { engine, isa })
         .unwrap_or_else(|error| panic!("{error}"))
         .0
 }
@@ -98,10 +100,18 @@ fn ticks(c: &mut Criterion) {
     computing(c, "thumbnails + test policy", BrightnessPolicy::default());
     computing(
         c,
-        "thumbnails + CNN, compiled engine",
-        cnn(Engine::Compiled),
+        &format!("thumbnails + CNN, compiled engine {}", Isa::detect()),
+        cnn(Engine::Compiled, None),
     );
-    computing(c, "thumbnails + CNN, tract", cnn(Engine::Tract));
+    // The target names AVX2+FMA; on an AVX-512 machine that is not the best set.
+    if Isa::Avx2Fma.is_available() && Isa::detect() != Isa::Avx2Fma {
+        computing(
+            c,
+            &format!("thumbnails + CNN, compiled engine {}", Isa::Avx2Fma),
+            cnn(Engine::Compiled, Some(Isa::Avx2Fma)),
+        );
+    }
+    computing(c, "thumbnails + CNN, tract", cnn(Engine::Tract, None));
     repeating(c);
 }
 

@@ -95,6 +95,22 @@ impl Isa {
         }
     }
 
+    /// Whether this set's kernels compute a 5x5 convolution of stride two and its 2x2 pool
+    /// with fewer multiplications ([`super::winograd`]), and the lanes of the vectors they
+    /// do it with: the input channels must be a whole number of them, the output channels
+    /// of twice as many. Not on the 32-bit V5 build, whose direct kernels are written in
+    /// assembly for its eight registers and counted under callgrind (`cross/README.md`), nor
+    /// on the portable path.
+    pub(crate) fn winograd_lanes(self) -> Option<usize> {
+        match self {
+            Self::Portable => None,
+            _ if cfg!(target_arch = "x86") => None,
+            Self::Sse2 | Self::Ssse3 | Self::Sse42 => Some(4),
+            // AVX-512 takes the AVX2 kernel where its channels are not whole 16-lane vectors.
+            Self::Avx2Fma | Self::Avx512 => Some(8),
+        }
+    }
+
     /// Every set this CPU runs, most portable first.
     pub fn available() -> impl Iterator<Item = Self> {
         Self::ALL.into_iter().filter(|isa| isa.is_available())

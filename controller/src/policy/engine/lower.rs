@@ -18,7 +18,9 @@ use tract_onnx::pb;
 use super::kernels::ConvShape;
 use super::plan::{
     AlignedWeights, BinaryOp, BufferId, ConvPool, DenseWeights, MAX_RANK, ReduceOp, Step, Strided,
+    WinogradConv,
 };
+use super::winograd;
 
 /// Why a graph cannot be lowered (it then runs under tract).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -75,15 +77,20 @@ struct Lowerer<'g> {
     fixed: Vec<bool>,
     /// The widest panel of a dense layer's weights.
     dense_width: usize,
+    /// The kernels' lanes for the Winograd convolution ([`super::Isa::winograd_lanes`]).
+    winograd_lanes: Option<usize>,
 }
 
 /// Lowers `graph` for inputs of the given shapes;
 /// `dense_width`: the most outputs a dense layer's weight panel holds (the kernels' choice,
-/// [`super::Isa::dense_panel_width`]).
+/// [`super::Isa::dense_panel_width`]); `winograd_lanes`: whether the kernels take 5x5
+/// stride-two convolutions with their 2x2 pool by [`super::winograd`], and in vectors of
+/// how many lanes.
 pub(crate) fn lower(
     graph: &pb::GraphProto,
     inputs: &[(&str, &[usize])],
     dense_width: usize,
+    winograd_lanes: Option<usize>,
 ) -> Lowered<Lowering> {
     let mut lowerer = Lowerer {
         graph,
@@ -94,6 +101,7 @@ pub(crate) fn lower(
         producer: HashMap::new(),
         fixed: Vec::new(),
         dense_width,
+        winograd_lanes,
     };
     for node in &graph.node {
         for input in node.input.iter().filter(|i| !i.is_empty()) {
@@ -542,6 +550,7 @@ impl Lowerer<'_> {
                 shape,
                 relu: false,
                 pool: None,
+                winograd: None,
                 out: to,
             },
         );
@@ -600,8 +609,14 @@ impl Lowerer<'_> {
         };
         if let Some((index, scratch_len)) = fold {
             let scratch = self.buffer(scratch_len);
+            let lanes = self.winograd_lanes;
+            let mut winograd_buffers = None;
             if let Step::Conv {
+                padded,
+                weights,
+                shape,
                 pool,
+                winograd,
                 out: conv_out,
                 ..
             } = &mut self.steps[index]
@@ -613,6 +628,47 @@ impl Lowerer<'_> {
                     out,
                     scratch,
                 });
+                let (ic, oc) = (shape.in_channels, shape.out_channels);
+                let row = shape.padded_width * ic;
+                let padded_rows = self.buffers[*padded].len() / row.max(1);
+                let layer = lanes
+                    .filter(|&lanes| ic.is_multiple_of(lanes) && oc.is_multiple_of(2 * lanes))
+                    .and_then(|_| {
+                        winograd::Layer::new(
+                            [shape.kernel, shape.stride],
+                            [[kernel[0], kernel[1]], [strides[0], strides[1]]],
+                            [shape.padded_width, padded_rows],
+                            [ic, oc],
+                            out,
+                        )
+                    });
+                if let Some(layer) = layer {
+                    // The rows past the padding that the last tiles read: zero, as the
+                    // border is (the padding step writes only the map's own rows).
+                    let needed = layer.padded_rows_needed() * row;
+                    if self.buffers[*padded].len() < needed {
+                        self.buffers[*padded].resize(needed, 0.0);
+                    }
+                    *winograd = Some(WinogradConv {
+                        layer,
+                        weights: winograd::transform_weights(weights.as_slice(), ic, oc),
+                        transformed: 0,
+                        products: 0,
+                    });
+                    winograd_buffers = Some(layer.scratch());
+                }
+            }
+            if let Some([transformed_len, products_len]) = winograd_buffers {
+                let (transformed, products) =
+                    (self.buffer(transformed_len), self.buffer(products_len));
+                if let Step::Conv {
+                    winograd: Some(winograd),
+                    ..
+                } = &mut self.steps[index]
+                {
+                    winograd.transformed = transformed;
+                    winograd.products = products;
+                }
             }
             self.producer.insert(output.to_owned(), index);
             self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);

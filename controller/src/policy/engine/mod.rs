@@ -22,6 +22,7 @@ mod plan;
 mod simd;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod window_asm;
+mod winograd;
 
 use std::path::{Path, PathBuf};
 
@@ -57,7 +58,7 @@ impl CompiledNetwork {
         if !isa.is_available() {
             return Err(Unsupported(format!("this CPU cannot run {isa} kernels")));
         }
-        let lowering = lower::lower(graph, inputs, isa.dense_panel_width())?;
+        let lowering = lower::lower(graph, inputs, isa.dense_panel_width(), isa.winograd_lanes())?;
         let mut buffers = lowering.buffers;
         // Constants folded into the steps (weights, biases) need no buffer of their own.
         let mut used = vec![false; buffers.len()];
@@ -141,17 +142,43 @@ impl CompiledNetwork {
         self.steps.len()
     }
 
+    /// How many convolutions run by Winograd's minimal filtering ([`winograd`]) rather than
+    /// as direct sums: they round differently, so a closed loop's episodes belong to one or
+    /// the other.
+    pub fn winograd_layers(&self) -> usize {
+        self.steps
+            .iter()
+            .filter(|step| {
+                matches!(
+                    step,
+                    Step::Conv {
+                        winograd: Some(_),
+                        ..
+                    }
+                )
+            })
+            .count()
+    }
+
     /// The multiply-adds of one run: the arithmetic that bounds its time from below (see
     /// [`peak`]).
     pub fn multiply_adds(&self) -> u64 {
         self.steps.iter().map(Step::multiply_adds).sum()
     }
 
-    /// Wall time of each step over `repeats` runs and its multiply-adds, for profiling
-    /// (allocates its report).
+    /// Wall time of each step over `repeats` runs (after a tenth as many to warm the caches
+    /// up) and its multiply-adds, for profiling (allocates its report).
     pub fn profile(&mut self, repeats: u32) -> Vec<(String, std::time::Duration, u64)> {
         let mut report = Vec::new();
         for i in 0..self.steps.len() {
+            for _ in 0..repeats / 10 {
+                execute(
+                    self.isa,
+                    &self.steps[i..i + 1],
+                    &mut self.buffers,
+                    &mut self.nonzero,
+                );
+            }
             let started = std::time::Instant::now();
             for _ in 0..repeats {
                 execute(
@@ -433,7 +460,7 @@ mod tests {
         for isa in Isa::available() {
             let mut network =
                 CompiledNetwork::lower(&path, graph, &CNN_INPUTS, isa).expect("lowers");
-            let report = network.profile(200);
+            let report = network.profile(2000);
             let total: std::time::Duration = report.iter().map(|(_, t, _)| *t).sum();
             let peak = peak::multiply_adds_per_second(isa);
             let share = |macs: u64, time: std::time::Duration| {

@@ -6,6 +6,7 @@
 use core::mem;
 
 use super::kernels::{self, ConvShape, MulAdd};
+use super::winograd;
 
 /// The two hot kernels, as an instruction set provides them.
 pub(crate) trait Kernels {
@@ -21,6 +22,23 @@ pub(crate) trait Kernels {
     );
     /// `y = bias + W x`; `nonzero` is scratch for the indices of `x`'s non-zero values.
     fn dense(x: &[f32], weights: &DenseWeights, bias: &[f32], y: &mut [f32], nonzero: &mut [u32]);
+
+    /// A convolution and its pool by [`winograd`] into the pooled map `out`, where the set
+    /// has the kernels for the layer's channels; false, having written nothing, where not.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // one layer
+    fn winograd_conv_pool(
+        _layer: &winograd::Layer,
+        _padded: &[f32],
+        _weights: &[f32],
+        _bias: &[f32],
+        _relu: bool,
+        _transformed: &mut [f32],
+        _products: &mut [f32],
+        _out: &mut [f32],
+    ) -> bool {
+        false
+    }
 
     /// Max pooling of an NHWC map (see [`kernels::max_pool_nhwc`]).
     #[inline(always)]
@@ -120,6 +138,31 @@ impl Kernels for SseKernels {
         }
     }
 
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn winograd_conv_pool(
+        layer: &winograd::Layer,
+        padded: &[f32],
+        weights: &[f32],
+        bias: &[f32],
+        relu: bool,
+        transformed: &mut [f32],
+        products: &mut [f32],
+        out: &mut [f32],
+    ) -> bool {
+        // Five tiles by two vectors: ten accumulators, two weight vectors and the broadcast.
+        winograd::conv_pool::<super::simd::Sse, 5, 2>(
+            layer,
+            padded,
+            weights,
+            bias,
+            relu,
+            transformed,
+            products,
+            out,
+        )
+    }
+
     #[inline(always)]
     fn dense(x: &[f32], weights: &DenseWeights, bias: &[f32], y: &mut [f32], nonzero: &mut [u32]) {
         use super::simd::{Sse, dense};
@@ -191,6 +234,30 @@ impl Kernels for AvxKernels {
         if !done {
             Generic::<kernels::Fused>::conv(shape, padded, weights, bias, relu, row, out);
         }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn winograd_conv_pool(
+        layer: &winograd::Layer,
+        padded: &[f32],
+        weights: &[f32],
+        bias: &[f32],
+        relu: bool,
+        transformed: &mut [f32],
+        products: &mut [f32],
+        out: &mut [f32],
+    ) -> bool {
+        winograd::conv_pool::<super::simd::Avx, 5, 2>(
+            layer,
+            padded,
+            weights,
+            bias,
+            relu,
+            transformed,
+            products,
+            out,
+        )
     }
 
     #[inline(always)]
@@ -266,6 +333,39 @@ impl Kernels for Avx512Kernels {
         if !done {
             AvxKernels::conv(shape, padded, weights, bias, relu, row, out);
         }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn winograd_conv_pool(
+        layer: &winograd::Layer,
+        padded: &[f32],
+        weights: &[f32],
+        bias: &[f32],
+        relu: bool,
+        transformed: &mut [f32],
+        products: &mut [f32],
+        out: &mut [f32],
+    ) -> bool {
+        winograd::conv_pool::<super::simd::Avx512, 5, 2>(
+            layer,
+            padded,
+            weights,
+            bias,
+            relu,
+            transformed,
+            products,
+            out,
+        ) || AvxKernels::winograd_conv_pool(
+            layer,
+            padded,
+            weights,
+            bias,
+            relu,
+            transformed,
+            products,
+            out,
+        )
     }
 
     #[inline(always)]
@@ -427,6 +527,18 @@ pub(crate) struct ConvPool {
     pub scratch: BufferId,
 }
 
+/// A convolution and its pool as [`winograd`] computes them: the transformed weights and the
+/// scratch of one row of tiles.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct WinogradConv {
+    pub layer: winograd::Layer,
+    pub weights: AlignedWeights,
+    /// `[tile][point][4 * in]`
+    pub transformed: BufferId,
+    /// `[tile][point][out]`
+    pub products: BufferId,
+}
+
 /// The highest rank the element-wise steps index.
 pub(crate) const MAX_RANK: usize = 6;
 
@@ -515,6 +627,8 @@ pub(crate) enum Step {
         relu: bool,
         /// When set, `out` holds the pooled map and the full-size one never exists.
         pool: Option<ConvPool>,
+        /// With a pool, the same layer with fewer multiplications, where the kernels take it.
+        winograd: Option<WinogradConv>,
         out: BufferId,
     },
     MaxPool {
@@ -593,6 +707,10 @@ impl Step {
     /// weights (zero inputs counted too: they are skipped at run time, as many as there are).
     pub(crate) fn multiply_adds(&self) -> u64 {
         let count = match self {
+            Self::Conv {
+                winograd: Some(winograd),
+                ..
+            } => winograd.layer.multiply_adds(),
             Self::Conv { shape, pool, .. } => {
                 let [oh, ow] = shape.out;
                 let rows = pool.map_or(oh, |pool| pool.out[0] * pool.kernel[0]);
@@ -621,10 +739,17 @@ impl Step {
             | Self::Relu { from, to, .. }
             | Self::Reduce { from, to, .. } => (vec![*from], vec![*to]),
             Self::Conv {
-                padded, pool, out, ..
+                padded,
+                pool,
+                winograd,
+                out,
+                ..
             } => {
                 let mut writes = vec![*out];
                 writes.extend(pool.map(|pool| pool.scratch));
+                if let Some(winograd) = winograd {
+                    writes.extend([winograd.transformed, winograd.products]);
+                }
                 (vec![*padded], writes)
             }
             Self::Binary { a, b, to, .. } => (vec![*a, *b], vec![*to]),
@@ -684,10 +809,31 @@ pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>], nonzero:
                 shape,
                 relu,
                 pool,
+                winograd,
                 out,
             } => {
                 let mut target = mem::take(&mut buffers[*out]);
                 let weights = weights.as_slice();
+                if let Some(winograd) = winograd {
+                    let mut transformed = mem::take(&mut buffers[winograd.transformed]);
+                    let mut products = mem::take(&mut buffers[winograd.products]);
+                    let done = K::winograd_conv_pool(
+                        &winograd.layer,
+                        &buffers[*padded],
+                        winograd.weights.as_slice(),
+                        bias,
+                        *relu,
+                        &mut transformed,
+                        &mut products,
+                        &mut target,
+                    );
+                    buffers[winograd.transformed] = transformed;
+                    buffers[winograd.products] = products;
+                    if done {
+                        buffers[*out] = target;
+                        continue;
+                    }
+                }
                 match pool {
                     None => K::conv(
                         shape,

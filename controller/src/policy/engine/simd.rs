@@ -62,8 +62,20 @@ pub(crate) trait Vector: Copy {
     /// `values` must point at `LANES` readable floats and be aligned to `LANES * 4` bytes.
     unsafe fn load_aligned_unchecked(values: *const f32) -> Self;
     fn store(self, values: &mut [f32]);
+    /// The `LANES` values from `values`, on any boundary.
+    ///
+    /// # Safety
+    /// `values` must point at `LANES` readable floats.
+    unsafe fn load_unchecked(values: *const f32) -> Self;
+    /// Stores the `LANES` values at `values`, on any boundary.
+    ///
+    /// # Safety
+    /// `values` must point at `LANES` writable floats.
+    unsafe fn store_unchecked(self, values: *mut f32);
     /// `a * b + c`: fused where the set has FMA.
     fn mul_add(a: Self, b: Self, c: Self) -> Self;
+    fn add(a: Self, b: Self) -> Self;
+    fn sub(a: Self, b: Self) -> Self;
     fn max(a: Self, b: Self) -> Self;
 }
 
@@ -258,6 +270,28 @@ impl Vector for Sse {
     }
 
     #[inline(always)]
+    unsafe fn load_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise.
+        Self(unsafe { _mm_loadu_ps(values) })
+    }
+
+    #[inline(always)]
+    unsafe fn store_unchecked(self, values: *mut f32) {
+        // SAFETY: the caller's promise.
+        unsafe { _mm_storeu_ps(values, self.0) }
+    }
+
+    #[inline(always)]
+    fn add(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm_add_ps(a.0, b.0) })
+    }
+
+    #[inline(always)]
+    fn sub(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm_sub_ps(a.0, b.0) })
+    }
+
+    #[inline(always)]
     fn max(a: Self, b: Self) -> Self {
         Self(unsafe { _mm_max_ps(a.0, b.0) })
     }
@@ -315,6 +349,28 @@ impl Vector for Avx {
     }
 
     #[inline(always)]
+    unsafe fn load_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise.
+        Self(unsafe { _mm256_loadu_ps(values) })
+    }
+
+    #[inline(always)]
+    unsafe fn store_unchecked(self, values: *mut f32) {
+        // SAFETY: the caller's promise.
+        unsafe { _mm256_storeu_ps(values, self.0) }
+    }
+
+    #[inline(always)]
+    fn add(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm256_add_ps(a.0, b.0) })
+    }
+
+    #[inline(always)]
+    fn sub(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm256_sub_ps(a.0, b.0) })
+    }
+
+    #[inline(always)]
     fn max(a: Self, b: Self) -> Self {
         Self(unsafe { _mm256_max_ps(a.0, b.0) })
     }
@@ -369,6 +425,28 @@ impl Vector for Avx512 {
     #[inline(always)]
     fn mul_add(a: Self, b: Self, c: Self) -> Self {
         Self(unsafe { _mm512_fmadd_ps(a.0, b.0, c.0) })
+    }
+
+    #[inline(always)]
+    unsafe fn load_unchecked(values: *const f32) -> Self {
+        // SAFETY: the caller's promise.
+        Self(unsafe { _mm512_loadu_ps(values) })
+    }
+
+    #[inline(always)]
+    unsafe fn store_unchecked(self, values: *mut f32) {
+        // SAFETY: the caller's promise.
+        unsafe { _mm512_storeu_ps(values, self.0) }
+    }
+
+    #[inline(always)]
+    fn add(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm512_add_ps(a.0, b.0) })
+    }
+
+    #[inline(always)]
+    fn sub(a: Self, b: Self) -> Self {
+        Self(unsafe { _mm512_sub_ps(a.0, b.0) })
     }
 
     #[inline(always)]
