@@ -67,11 +67,16 @@ pub struct EngineReport {
     /// The multiply-adds of the network one step runs, where the compiled engine runs it
     /// (its count of a lowered plan; tract's plan is not counted).
     pub multiply_adds: Option<u64>,
+    /// Whether the compiled engine runs a convolution by Winograd's minimal filtering, which
+    /// rounds differently from the direct sum (named in the report: a closed loop's goal
+    /// count belongs to the arithmetic that measured it).
+    pub winograd: bool,
 }
 
 impl std::fmt::Display for EngineReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match (&self.compiled, &self.fallback) {
+            (Some(isa), _) if self.winograd => write!(f, "compiled ({isa}, winograd)"),
             (Some(isa), _) => write!(f, "compiled ({isa})"),
             (None, Some(why)) => write!(f, "tract (the compiled engine cannot run it: {why})"),
             (None, None) => f.write_str("tract"),
@@ -229,6 +234,7 @@ impl Network {
                         compiled: Some(isa),
                         fallback: None,
                         multiply_adds: Some(compiled.multiply_adds()),
+                        winograd: compiled.winograd_layers() > 0,
                     };
                     let network = Self::Compiled {
                         network: Box::new(compiled),
@@ -267,6 +273,7 @@ impl Network {
                 compiled: None,
                 fallback,
                 multiply_adds: None,
+                winograd: false,
             },
         ))
     }
@@ -423,6 +430,7 @@ impl HcnnPolicy {
             compiled: None,
             fallback: None,
             multiply_adds: None,
+            winograd: false,
         };
         for (index, path) in manifest.network_paths().enumerate() {
             let (network, own) = Network::load(manifest, &path, names.clone(), options)?;
