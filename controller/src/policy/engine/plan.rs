@@ -109,6 +109,7 @@ impl Kernels for SseKernels {
         // The first layer (one input channel) gets its inner loop unrolled.
         #[cfg(target_arch = "x86_64")]
         let done = match (shape.out_channels, ic, shape.kernel[1]) {
+            (8, 1, 5) => conv_rows::<Sse, 2, 5, 1, 5>(shape, padded, weights, bias, relu, row, out),
             (8, _, _) => conv_rows::<Sse, 2, 5, 0, 0>(shape, padded, weights, bias, relu, row, out),
             (16, 1, 5) => {
                 conv_rows::<Sse, 4, 2, 1, 5>(shape, padded, weights, bias, relu, row, out)

@@ -423,6 +423,30 @@ mod vector {
             &transformed[first * tile + point * k..(first + P - 1) * tile + (point + 1) * k];
         let u = &u[..k * oc];
         let mut acc = [[V::zero(); VECS]; P];
+        if V::QUAD_BROADCAST && k.is_multiple_of(4) {
+            // SSE: four inputs of a tile broadcast by one load and four shuffles (a broadcast
+            // each takes a load and a shuffle), the weights read by the multiplies from
+            // memory; the same products summed in the same order as below.
+            for i in (0..k).step_by(4) {
+                for (p, acc) in acc.iter_mut().enumerate() {
+                    // SAFETY: p * tile + i + 4 <= (P - 1) * tile + k, the length of
+                    // `inputs`; the weights as below.
+                    let xs = unsafe { V::splat4(inputs.as_ptr().add(p * tile + i)) };
+                    for (j, &x) in xs.iter().enumerate() {
+                        for (v, acc) in acc.iter_mut().enumerate() {
+                            let w = unsafe {
+                                V::load_aligned_unchecked(
+                                    u.as_ptr().add((i + j) * oc + group + v * V::LANES),
+                                )
+                            };
+                            *acc = V::mul_add(x, w, *acc);
+                        }
+                    }
+                }
+            }
+            store_block::<V, P, VECS>(&acc, [first, point, group, oc], products);
+            return;
+        }
         for i in 0..k {
             // SAFETY: i < k and group + VECS * LANES <= oc, so each vector lies inside row i
             // of `u`, from a LANES-float boundary (the weights start on one, oc and group are
@@ -440,6 +464,16 @@ mod vector {
                 }
             }
         }
+        store_block::<V, P, VECS>(&acc, [first, point, group, oc], products);
+    }
+
+    /// A block's accumulators into `products[tile][point][o]`.
+    #[inline(always)]
+    fn store_block<V: Vector, const P: usize, const VECS: usize>(
+        acc: &[[V; VECS]; P],
+        [first, point, group, oc]: [usize; 4],
+        products: &mut [f32],
+    ) {
         let products = &mut products[first * POINTS * oc..];
         for (p, acc) in acc.iter().enumerate() {
             for (v, acc) in acc.iter().enumerate() {
