@@ -27,6 +27,11 @@
 //! rounding differs from the direct sum by a few units in the last place (checked against
 //! tract: within 1e-5 on every fixture and shipped model, `tests/engine_parity.rs`).
 //!
+//! Measured (AMD EPYC Zen 3, one thread, `profile_the_cnn_fixture`): the top camera's
+//! second layer 83 -> 63 µs with AVX2+FMA and 236 -> 189 µs with SSE; the CNN fixture's
+//! forward 167 -> 143 µs (AVX2+FMA). Its multiply-adds: 6.33 M -> 4.95 M. The products run at
+//! about 90 % of the AVX2 peak; the transforms take about a sixth of the layer.
+//!
 //! A 2x2 output tile reads an 8x8 patch of the padded input: the eighth row and column meet
 //! only the zero taps, but they are read (a zero weight after `G` is not zero), so the
 //! padded buffer must hold them; [`Layer::new`] checks, and the lowering gives the padded
