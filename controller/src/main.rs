@@ -165,6 +165,11 @@ enum Command {
         policy: PathBuf,
         #[arg(long, default_value_t = 1)]
         steps: u32,
+        /// Do not measure this core's arithmetic peak. The probe runs for a fixed time, not a
+        /// fixed number of instructions, so instruction counts (`cross/count`, callgrind)
+        /// must leave it out.
+        #[arg(long)]
+        no_peak: bool,
     },
 }
 
@@ -206,7 +211,11 @@ fn main() -> anyhow::Result<()> {
             }
             result
         }
-        Command::Forward { policy, steps } => forward(&policy, steps, options, config.tick_period),
+        Command::Forward {
+            policy,
+            steps,
+            no_peak,
+        } => forward(&policy, steps, !no_peak, options, config.tick_period),
         Command::DryRun {
             policy,
             seconds,
@@ -349,6 +358,7 @@ fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(
 fn forward(
     manifest: &Path,
     steps: u32,
+    measure_peak: bool,
     options: EngineOptions,
     budget: Duration,
 ) -> anyhow::Result<()> {
@@ -364,7 +374,11 @@ fn forward(
     downscale(&top_frame, &mut top);
     downscale(&bottom_frame, &mut bottom);
     // Measured before the passes, on an idle core (see `peak`).
-    let peak = policy.engine().compiled.and_then(multiply_adds_per_second);
+    let peak = policy
+        .engine()
+        .compiled
+        .filter(|_| measure_peak)
+        .and_then(multiply_adds_per_second);
     let mut last = None;
     let mut times = TickStats::new(budget);
     for _ in 0..steps {

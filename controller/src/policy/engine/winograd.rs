@@ -489,6 +489,8 @@ mod vector {
 }
 
 #[cfg(test)]
+// The references follow the formulas, indices and all.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 
