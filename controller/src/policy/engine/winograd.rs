@@ -28,7 +28,9 @@
 //! tract: within 1e-5 on every fixture and shipped model, `tests/engine_parity.rs`).
 //!
 //! Measured (AMD EPYC Zen 3, one thread, `profile_the_cnn_fixture`): the top camera's
-//! second layer 83 -> 63 µs with AVX2+FMA and 236 -> 189 µs with SSE; the CNN fixture's
+//! second layer 83 -> 63 µs with AVX2+FMA and 236 -> 189 µs with SSE (146 µs once SSE took
+//! one tile by all 32 output channels per block: its broadcasts are shuffles, on the pipes
+//! the arithmetic uses, so each must feed as many multiplies as it can); the CNN fixture's
 //! forward 167 -> 143 µs (AVX2+FMA). Its multiply-adds: 6.33 M -> 4.95 M. The products run at
 //! about 90 % of the AVX2 peak; the transforms take about a sixth of the layer.
 //!
@@ -708,6 +710,32 @@ mod vector_tests {
         conv_pool::<Sse, 5, 2>(l, x, u, b, true, t, m, o)
     }
 
+    /// The SSE blockings the engine runs (`SseKernels::winograd_conv_pool`): one tile by
+    /// eight vectors (32 output channels) and by four (16).
+    fn sse_one_by_eight(
+        l: &Layer,
+        x: &[f32],
+        u: &[f32],
+        b: &[f32],
+        t: &mut [f32],
+        m: &mut [f32],
+        o: &mut [f32],
+    ) -> bool {
+        conv_pool::<Sse, 1, 8>(l, x, u, b, true, t, m, o)
+    }
+
+    fn sse_one_by_four(
+        l: &Layer,
+        x: &[f32],
+        u: &[f32],
+        b: &[f32],
+        t: &mut [f32],
+        m: &mut [f32],
+        o: &mut [f32],
+    ) -> bool {
+        conv_pool::<Sse, 1, 4>(l, x, u, b, true, t, m, o)
+    }
+
     #[target_feature(enable = "avx,avx2,fma")]
     fn avx(
         l: &Layer,
@@ -734,21 +762,27 @@ mod vector_tests {
         conv_pool::<Avx512, 5, 2>(l, x, u, b, true, t, m, o)
     }
 
-    /// Each vector set this CPU runs: its kernel and its lanes.
-    fn kernels() -> Vec<(&'static str, Kernel, usize)> {
-        let mut kernels: Vec<(&'static str, Kernel, usize)> = vec![("sse", sse, Sse::LANES)];
+    /// Each vector set and blocking this CPU runs: its kernel, its lanes and the output
+    /// channels one block covers (a layer's must be a multiple).
+    fn kernels() -> Vec<(&'static str, Kernel, usize, usize)> {
+        let lanes = Sse::LANES;
+        let mut kernels: Vec<(&'static str, Kernel, usize, usize)> = vec![
+            ("sse 5x2", sse, lanes, 2 * lanes),
+            ("sse 1x8", sse_one_by_eight, lanes, 8 * lanes),
+            ("sse 1x4", sse_one_by_four, lanes, 4 * lanes),
+        ];
         if Isa::Avx2Fma.is_available() {
-            kernels.push(("avx2", avx, Avx::LANES));
+            kernels.push(("avx2", avx, Avx::LANES, 2 * Avx::LANES));
         }
         if Isa::Avx512.is_available() {
-            kernels.push(("avx512", avx512, Avx512::LANES));
+            kernels.push(("avx512", avx512, Avx512::LANES, 2 * Avx512::LANES));
         }
         kernels
     }
 
     #[test]
     fn every_vector_set_computes_the_direct_convolution_and_pool() {
-        for (name, kernel, lanes) in kernels() {
+        for (name, kernel, lanes, group) in kernels() {
             // The networks' two layers (compiled-in sizes), then others: more input channels,
             // more output groups, a row of tiles that is not whole blocks.
             let shapes = [
@@ -756,9 +790,10 @@ mod vector_tests {
                 (8, 16, [4, 5]),
                 (lanes, 4 * lanes, [2, 6]),
                 (3 * lanes, 2 * lanes, [3, 7]),
+                (2 * lanes, 16 * lanes, [3, 5]),
             ];
             for (seed, (ic, oc, tiles)) in shapes.into_iter().enumerate() {
-                if !ic.is_multiple_of(lanes) || !oc.is_multiple_of(2 * lanes) {
+                if !ic.is_multiple_of(lanes) || !oc.is_multiple_of(group) {
                     continue;
                 }
                 let case = Case::new(ic, oc, tiles, 10 * seed as u64);
@@ -777,10 +812,10 @@ mod vector_tests {
 
     #[test]
     fn a_layer_whose_channels_are_not_whole_vectors_is_declined() {
-        for (name, kernel, lanes) in kernels() {
-            let case = Case::new(lanes + 1, 2 * lanes, [2, 6], 1);
+        for (name, kernel, lanes, group) in kernels() {
+            let case = Case::new(lanes + 1, group, [2, 6], 1);
             assert!(case.run(kernel).is_none(), "{name}");
-            let case = Case::new(lanes, 2 * lanes + 1, [2, 6], 1);
+            let case = Case::new(lanes, group + 1, [2, 6], 1);
             assert!(case.run(kernel).is_none(), "{name}");
         }
     }
