@@ -156,39 +156,26 @@ impl Kernels for SseKernels {
         // that the multiplies and adds use) feeds eight or four multiplies, where five tiles
         // by two vectors fed two (`profile`, SSE: the top camera's second layer 186 -> 146
         // µs, the bottom camera's 13.9 -> 12.3 µs; two tiles by four vectors: 172 µs).
+        macro_rules! blocked {
+            ($tiles:literal, $vecs:literal) => {
+                winograd::conv_pool::<Sse, $tiles, $vecs>(
+                    layer,
+                    padded,
+                    weights,
+                    bias,
+                    relu,
+                    transformed,
+                    products,
+                    out,
+                )
+            };
+        }
         if layer.out_channels.is_multiple_of(32) {
-            winograd::conv_pool::<Sse, 1, 8>(
-                layer,
-                padded,
-                weights,
-                bias,
-                relu,
-                transformed,
-                products,
-                out,
-            )
+            blocked!(1, 8)
         } else if layer.out_channels.is_multiple_of(16) {
-            winograd::conv_pool::<Sse, 1, 4>(
-                layer,
-                padded,
-                weights,
-                bias,
-                relu,
-                transformed,
-                products,
-                out,
-            )
+            blocked!(1, 4)
         } else {
-            winograd::conv_pool::<Sse, 5, 2>(
-                layer,
-                padded,
-                weights,
-                bias,
-                relu,
-                transformed,
-                products,
-                out,
-            )
+            blocked!(5, 2)
         }
     }
 

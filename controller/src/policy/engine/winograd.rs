@@ -698,7 +698,10 @@ mod vector_tests {
     type Kernel =
         unsafe fn(&Layer, &[f32], &[f32], &[f32], &mut [f32], &mut [f32], &mut [f32]) -> bool;
 
-    fn sse(
+    /// The SSE kernel with `P` tiles by `VECS` vectors per block: five by two (the layers whose
+    /// channels fill neither 16 nor 32), and the blockings the engine runs for 32 and 16
+    /// output channels (`SseKernels::winograd_conv_pool`), one by eight and one by four.
+    fn sse<const P: usize, const VECS: usize>(
         l: &Layer,
         x: &[f32],
         u: &[f32],
@@ -707,33 +710,7 @@ mod vector_tests {
         m: &mut [f32],
         o: &mut [f32],
     ) -> bool {
-        conv_pool::<Sse, 5, 2>(l, x, u, b, true, t, m, o)
-    }
-
-    /// The SSE blockings the engine runs (`SseKernels::winograd_conv_pool`): one tile by
-    /// eight vectors (32 output channels) and by four (16).
-    fn sse_one_by_eight(
-        l: &Layer,
-        x: &[f32],
-        u: &[f32],
-        b: &[f32],
-        t: &mut [f32],
-        m: &mut [f32],
-        o: &mut [f32],
-    ) -> bool {
-        conv_pool::<Sse, 1, 8>(l, x, u, b, true, t, m, o)
-    }
-
-    fn sse_one_by_four(
-        l: &Layer,
-        x: &[f32],
-        u: &[f32],
-        b: &[f32],
-        t: &mut [f32],
-        m: &mut [f32],
-        o: &mut [f32],
-    ) -> bool {
-        conv_pool::<Sse, 1, 4>(l, x, u, b, true, t, m, o)
+        conv_pool::<Sse, P, VECS>(l, x, u, b, true, t, m, o)
     }
 
     #[target_feature(enable = "avx,avx2,fma")]
@@ -767,9 +744,9 @@ mod vector_tests {
     fn kernels() -> Vec<(&'static str, Kernel, usize, usize)> {
         let lanes = Sse::LANES;
         let mut kernels: Vec<(&'static str, Kernel, usize, usize)> = vec![
-            ("sse 5x2", sse, lanes, 2 * lanes),
-            ("sse 1x8", sse_one_by_eight, lanes, 8 * lanes),
-            ("sse 1x4", sse_one_by_four, lanes, 4 * lanes),
+            ("sse 5x2", sse::<5, 2>, lanes, 2 * lanes),
+            ("sse 1x8", sse::<1, 8>, lanes, 8 * lanes),
+            ("sse 1x4", sse::<1, 4>, lanes, 4 * lanes),
         ];
         if Isa::Avx2Fma.is_available() {
             kernels.push(("avx2", avx, Avx::LANES, 2 * Avx::LANES));
