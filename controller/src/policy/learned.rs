@@ -6,7 +6,14 @@
 //! under tract: its input tensors are allocated once and shared with tract by reference
 //! count (a step writes the scaled thumbnails in place), but tract allocates its
 //! intermediate tensors on every run. [`OnnxPolicy::engine`] says which ran and why.
+//!
+//! A model file is input from outside. Before the compiled engine is trusted with a network,
+//! its plan runs once at load beside tract on the same pseudo-random inputs
+//! ([`engine_agrees_with_tract`]), inside the panic guard: a panic in the lowering or in that
+//! pass, or any output that differs from tract's, leaves the network to tract, with the
+//! reason in the load log and in [`EngineReport::fallback`].
 
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -215,7 +222,7 @@ impl Network {
             opset: manifest.opset,
         };
         // tract reads, checks and plans the file in any case: it is the loader and the oracle.
-        let (network, proto) = OnnxNetwork::load(path, &interface)?;
+        let (mut network, proto) = OnnxNetwork::load(path, &interface)?;
         let mut fallback = None;
         if options.engine == Engine::Compiled {
             let isa = options.isa.unwrap_or_else(Isa::detect);
@@ -223,11 +230,20 @@ impl Network {
                 .iter()
                 .map(|&(_, name, shape)| (name, shape))
                 .collect();
-            let lowered = proto
-                .graph
-                .as_ref()
-                .ok_or_else(|| super::engine::Unsupported("no graph".into()))
-                .and_then(|graph| CompiledNetwork::lower(path, graph, &shapes, isa));
+            // The lowering and the check run inside the panic guard: a panic in either is a
+            // fault of the engine on this file, and tract runs it instead.
+            let lowered = catch_unwind(AssertUnwindSafe(|| {
+                let mut compiled =
+                    CompiledNetwork::lower(path, &proto, &shapes, isa).map_err(|why| why.0)?;
+                engine_agrees_with_tract(&mut compiled, &mut network, &names, manifest, units)?;
+                Ok::<_, String>(compiled)
+            }))
+            .unwrap_or_else(|payload| {
+                Err(format!(
+                    "the engine panicked on this network ({})",
+                    panic_message(payload.as_ref())
+                ))
+            });
             match lowered {
                 Ok(compiled) => {
                     let report = EngineReport {
@@ -247,10 +263,10 @@ impl Network {
                     tracing::warn!(
                         event = "engine_fallback",
                         network = %path.display(),
-                        reason = %why.0,
+                        reason = %why,
                         action = "tract runs this network",
                     );
-                    fallback = Some(why.0);
+                    fallback = Some(why);
                 }
             }
         }
@@ -322,7 +338,12 @@ impl Network {
                         *value = f32::from(pixel) * *scale;
                     }
                 }
-                network.run();
+                // The plan ran once at load (`engine_agrees_with_tract`) and its shapes do not
+                // change; a panic here all the same is a failed inference (a stop), not a
+                // crash. The guard costs nothing while nothing panics.
+                if catch_unwind(AssertUnwindSafe(|| network.run())).is_err() {
+                    return Err(PolicyError::Engine("the compiled engine panicked"));
+                }
                 let command = match network.output(&names.command) {
                     Some(&[forward, left, turn]) => PolicyOutput {
                         forward,
@@ -364,6 +385,127 @@ impl Network {
             }
         }
     }
+}
+
+/// The text of a caught panic.
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|text| (*text).to_owned())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "no message".to_owned())
+}
+
+/// How far the engine may differ from tract on the load check: the summation orders differ
+/// (the shipped models differ by at most a few 1e-6), a wrong lowering by far more.
+const AGREEMENT: f32 = 1e-4;
+
+/// Runs `compiled` and tract's `network` on the same two pseudo-random inputs (thumbnails
+/// of random pixels through the manifest's scale; random recurrent states in [-1, 1]) and
+/// compares every output the controller reads. Leaves the compiled plan's recurrent inputs
+/// at zero, as at an episode's start.
+fn engine_agrees_with_tract(
+    compiled: &mut CompiledNetwork,
+    network: &mut OnnxNetwork,
+    names: &PortNames,
+    manifest: &PolicyManifest,
+    units: usize,
+) -> Result<(), String> {
+    let scale = manifest.normalisation.scale;
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for probe in 0..2 {
+        let top: Vec<f32> = (0..TOP_SHAPE.iter().product::<usize>())
+            .map(|_| f32::from((next() >> 56) as u8) * scale)
+            .collect();
+        let bottom: Vec<f32> = (0..BOTTOM_SHAPE.iter().product::<usize>())
+            .map(|_| f32::from((next() >> 56) as u8) * scale)
+            .collect();
+        let mut random_state = || -> Vec<f32> {
+            (0..units)
+                .map(|_| (next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0)
+                .collect()
+        };
+        let (hidden, cell) = (random_state(), random_state());
+        let mut feeds = vec![
+            (Port::Top, names.top.as_str(), &TOP_SHAPE[..], top),
+            (
+                Port::Bottom,
+                names.bottom.as_str(),
+                &BOTTOM_SHAPE[..],
+                bottom,
+            ),
+        ];
+        let state_shape = [1, 1, units];
+        let mut expected = vec![(Port::Command, names.command.as_str())];
+        if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent {
+            feeds.push((Port::Hidden, h_in.as_str(), &state_shape[..], hidden));
+            feeds.push((Port::Cell, c_in.as_str(), &state_shape[..], cell));
+            expected.push((Port::Hidden, h_out.as_str()));
+            expected.push((Port::Cell, c_out.as_str()));
+        }
+        let mut tensors = Vec::new();
+        for (port, name, shape, values) in &feeds {
+            let input = compiled
+                .input_mut(name)
+                .filter(|input| input.len() == values.len())
+                .ok_or_else(|| {
+                    format!("the plan has no input {name:?} of {} values", values.len())
+                })?;
+            input.copy_from_slice(values);
+            let tensor = Tensor::from_shape(shape, values).map_err(|error| format!("{error:#}"))?;
+            tensors.push((*port, TValue::from_const(Arc::new(tensor))));
+        }
+        compiled.run();
+        let outputs = network
+            .run(|port| {
+                tensors
+                    .iter()
+                    .find(|(p, _)| *p == port)
+                    .map_or_else(|| tensors[0].1.clone(), |(_, value)| value.clone())
+            })
+            .map_err(|error| format!("tract failed on the check's input: {error}"))?;
+        for (port, name) in &expected {
+            let engine = compiled
+                .output(name)
+                .ok_or_else(|| format!("the plan has no output {name:?}"))?;
+            let tract = outputs
+                .iter()
+                .find(|(p, _)| p == port)
+                .and_then(|(_, value)| value.try_as_plain_ram().ok()?.as_slice::<f32>().ok())
+                .ok_or_else(|| format!("tract gave no output {name:?}"))?;
+            if engine.len() != tract.len() {
+                return Err(format!(
+                    "output {name:?}: {} values from the engine, {} from tract",
+                    engine.len(),
+                    tract.len()
+                ));
+            }
+            for (i, (&a, &b)) in engine.iter().zip(tract).enumerate() {
+                let agree = a == b
+                    || (a.is_nan() && b.is_nan())
+                    || (a - b).abs() <= AGREEMENT * (1.0 + b.abs());
+                if !agree {
+                    return Err(format!(
+                        "the engine's output {name:?}[{i}] is {a}, tract's {b} (check {probe})"
+                    ));
+                }
+            }
+        }
+    }
+    if let Some([h_in, c_in, _, _]) = &names.recurrent {
+        for name in [h_in, c_in] {
+            if let Some(values) = compiled.input_mut(name) {
+                values.fill(0.0);
+            }
+        }
+    }
+    Ok(())
 }
 
 fn port_names(manifest: &PolicyManifest) -> PortNames {
@@ -555,15 +697,11 @@ impl OnnxPolicy {
         manifest_path: &Path,
         options: EngineOptions,
     ) -> Result<(Self, PolicyManifest), PolicyLoadError> {
-        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        catch_unwind(AssertUnwindSafe(|| {
             Self::load_unguarded(manifest_path, options)
         }))
         .unwrap_or_else(|payload| {
-            let message = payload
-                .downcast_ref::<&str>()
-                .map(|text| (*text).to_owned())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "no message".to_owned());
+            let message = panic_message(payload.as_ref());
             Err(PolicyLoadError::Onnx {
                 path: manifest_path.to_owned(),
                 problem: format!("made the model loader panic ({message}): not a usable policy"),
@@ -669,6 +807,73 @@ mod tests {
             before,
             "the tensor was copied"
         );
+    }
+
+    /// The CNN fixture's manifest, its network under tract and its parsed file.
+    fn cnn_fixture_network() -> (
+        PolicyManifest,
+        PortNames,
+        OnnxNetwork,
+        tract_onnx::pb::ModelProto,
+    ) {
+        let manifest =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.toml");
+        let manifest = PolicyManifest::load(&manifest).expect("manifest");
+        let mut names = port_names(&manifest);
+        names.recurrent = None;
+        let path = manifest.directory.join(&manifest.networks[0]);
+        let inputs = [
+            (Port::Top, names.top.as_str(), &TOP_SHAPE[..]),
+            (Port::Bottom, names.bottom.as_str(), &BOTTOM_SHAPE[..]),
+        ];
+        let outputs = [(Port::Command, names.command.as_str(), &COMMAND_SHAPE[..])];
+        let interface = Interface {
+            inputs: &inputs,
+            outputs: &outputs,
+            opset: manifest.opset,
+        };
+        let (network, proto) = OnnxNetwork::load(&path, &interface).expect("loads");
+        (manifest, names, network, proto)
+    }
+
+    #[test]
+    fn the_load_check_refuses_a_plan_that_computes_another_network() {
+        let (manifest, names, mut network, mut proto) = cnn_fixture_network();
+        let path = manifest.directory.join(&manifest.networks[0]);
+        let shapes = [
+            (names.top.as_str(), &TOP_SHAPE[..]),
+            (names.bottom.as_str(), &BOTTOM_SHAPE[..]),
+        ];
+        for isa in Isa::available() {
+            let mut same = CompiledNetwork::lower(&path, &proto, &shapes, isa).expect("lowers");
+            engine_agrees_with_tract(&mut same, &mut network, &names, &manifest, 0)
+                .unwrap_or_else(|why| panic!("{isa}: the fixture's own plan: {why}"));
+        }
+        // The plan of a file whose last bias differs by 0.01 from the one tract runs: as
+        // a lowering that misread one number would compute.
+        let graph = proto.graph.as_mut().expect("graph");
+        let bias = graph
+            .initializer
+            .iter_mut()
+            .rfind(|tensor| tensor.dims == [3])
+            .expect("the last layer's bias");
+        if bias.raw_data.is_empty() {
+            bias.float_data[1] += 0.01;
+        } else {
+            let value = f32::from_le_bytes([
+                bias.raw_data[4],
+                bias.raw_data[5],
+                bias.raw_data[6],
+                bias.raw_data[7],
+            ]) + 0.01;
+            bias.raw_data[4..8].copy_from_slice(&value.to_le_bytes());
+        }
+        for isa in Isa::available() {
+            let mut other = CompiledNetwork::lower(&path, &proto, &shapes, isa).expect("lowers");
+            let why = engine_agrees_with_tract(&mut other, &mut network, &names, &manifest, 0)
+                .expect_err("a different network");
+            assert!(why.contains("\"command\"[1]"), "{isa}: {why}");
+        }
     }
 
     #[test]

@@ -89,6 +89,10 @@ impl CommandScale {
     }
 }
 
+/// The most LSTM units a manifest may declare (the paper's R-CNN has 64): the state tensors
+/// are allocated at load, so an absurd count must be refused before it is.
+pub const MAX_RECURRENT_UNITS: usize = 4096;
+
 /// The R-CNN's LSTM state tensors, each `[1, 1, units]`.
 #[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -248,8 +252,11 @@ impl PolicyManifest {
             }
             PolicyKind::Rcnn => match &self.recurrent {
                 None => return Err("an R-CNN needs a [recurrent] table".into()),
-                Some(recurrent) if recurrent.units == 0 => {
-                    return Err("recurrent.units must be positive".into());
+                Some(recurrent) if !(1..=MAX_RECURRENT_UNITS).contains(&recurrent.units) => {
+                    return Err(format!(
+                        "recurrent.units must be from 1 to {MAX_RECURRENT_UNITS}, found {}",
+                        recurrent.units
+                    ));
                 }
                 Some(_) => {}
             },

@@ -10,6 +10,7 @@ pub mod engine;
 pub mod file_watch;
 mod learned;
 pub mod manifest;
+pub mod model_limits;
 mod onnx_network;
 
 pub use brightness::BrightnessPolicy;

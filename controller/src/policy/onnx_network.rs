@@ -189,6 +189,11 @@ fn check_proto(
             problem: "has no graph".into(),
         });
     };
+    // Before tract plans anything: sizes that hang or crash its planner are refused here.
+    super::model_limits::check(proto).map_err(|problem| PolicyLoadError::Onnx {
+        path: path.to_owned(),
+        problem,
+    })?;
     let initializers: Vec<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
     let graph_inputs: Vec<&pb::ValueInfoProto> = graph
         .input

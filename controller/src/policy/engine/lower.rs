@@ -10,6 +10,15 @@
 //! element-wise Add, Sub, Mul, Div, Equal with broadcasting, ReduceMax, ReduceSum, Cast to
 //! float, Identity and Constant. Anything else is refused with the reason, and the
 //! network runs under tract instead.
+//!
+//! A model file is input from outside: every dimension, attribute and index it declares is
+//! checked here before any arithmetic uses it. Each tensor the plan computes has no empty
+//! dimension and at most [`MAX_ELEMENTS`] numbers, the plan at most [`MAX_PLAN_ELEMENTS`] in
+//! all, and sizes are combined with checked arithmetic, so no product wraps on a 32-bit
+//! robot or a 64-bit host and every offset a kernel computes lies inside its buffer.
+//! Attributes follow the operator set the file declares (`axes` became an input of
+//! Squeeze, Unsqueeze and ReduceSum at 13, of ReduceMax at 18): the lowering reads an
+//! operator as tract does at that opset, and refuses the forms it does not know.
 
 use std::collections::HashMap;
 
@@ -27,6 +36,38 @@ use super::winograd;
 pub struct Unsupported(pub String);
 
 type Lowered<T> = Result<T, Unsupported>;
+
+/// The most numbers one tensor of the plan may hold: 2^24 (64 MiB of floats), over 50 times
+/// the largest of the paper's networks (the 2560x128 dense weights).
+pub const MAX_ELEMENTS: usize = 1 << 24;
+
+/// The most numbers all buffers of one plan may hold together (256 MiB of floats).
+pub const MAX_PLAN_ELEMENTS: usize = 1 << 26;
+
+/// The number of elements of `shape`, refused when a dimension is empty or the count passes
+/// [`MAX_ELEMENTS`] (checked, so a declared shape cannot wrap it).
+pub(crate) fn elements(shape: &[usize]) -> Lowered<usize> {
+    let count = shape
+        .iter()
+        .try_fold(1usize, |count, &d| count.checked_mul(d))
+        .filter(|&count| count <= MAX_ELEMENTS);
+    match count {
+        Some(count) if count > 0 => Ok(count),
+        Some(_) => unsupported(format!("an empty tensor of shape {shape:?}")),
+        None => unsupported(format!(
+            "a tensor of shape {shape:?}: more than {MAX_ELEMENTS} numbers"
+        )),
+    }
+}
+
+/// A dimension, size, stride or padding declared in the file, as a `usize` no larger than
+/// [`MAX_ELEMENTS`].
+fn dimension(value: i64) -> Lowered<usize> {
+    usize::try_from(value)
+        .ok()
+        .filter(|&v| v <= MAX_ELEMENTS)
+        .ok_or_else(|| Unsupported(format!("size {value}")))
+}
 
 fn unsupported<T>(why: impl Into<String>) -> Lowered<T> {
     Err(Unsupported(why.into()))
@@ -64,8 +105,7 @@ pub(crate) struct Lowering {
     pub outputs: Vec<(String, BufferId, usize)>,
 }
 
-struct Lowerer<'g> {
-    graph: &'g pb::GraphProto,
+struct Lowerer {
     values: HashMap<String, Value>,
     buffers: Vec<Vec<f32>>,
     steps: Vec<Step>,
@@ -75,6 +115,14 @@ struct Lowerer<'g> {
     producer: HashMap<String, usize>,
     /// Buffers whose contents are constants or graph inputs: never written by a step.
     fixed: Vec<bool>,
+    /// Buffers whose contents are the file's constants (known at load): only these may be
+    /// folded into a step as weights. A graph input is fixed but not constant.
+    constant: Vec<bool>,
+    /// Numbers in all buffers so far (at most [`MAX_PLAN_ELEMENTS`]).
+    allocated: usize,
+    /// The file's operator set (default domain), which decides where some operators keep
+    /// their axes.
+    opset: i64,
     /// The widest panel of a dense layer's weights.
     dense_width: usize,
     /// The kernels' lanes for the Winograd convolution ([`super::Isa::winograd_lanes`]).
@@ -87,19 +135,31 @@ struct Lowerer<'g> {
 /// stride-two convolutions with their 2x2 pool by [`super::winograd`], and in vectors of
 /// how many lanes.
 pub(crate) fn lower(
-    graph: &pb::GraphProto,
+    model: &pb::ModelProto,
     inputs: &[(&str, &[usize])],
     dense_width: usize,
     winograd_lanes: Option<usize>,
 ) -> Lowered<Lowering> {
+    let graph = model
+        .graph
+        .as_ref()
+        .ok_or_else(|| Unsupported("no graph".into()))?;
+    let opset = model
+        .opset_import
+        .iter()
+        .find(|import| import.domain.is_empty() || import.domain == "ai.onnx")
+        .map(|import| import.version)
+        .ok_or_else(|| Unsupported("no operator set for the default domain".into()))?;
     let mut lowerer = Lowerer {
-        graph,
         values: HashMap::new(),
         buffers: Vec::new(),
         steps: Vec::new(),
         readers: HashMap::new(),
         producer: HashMap::new(),
         fixed: Vec::new(),
+        constant: Vec::new(),
+        allocated: 0,
+        opset,
         dense_width,
         winograd_lanes,
     };
@@ -117,7 +177,7 @@ pub(crate) fn lower(
     }
     let mut input_buffers = Vec::new();
     for (name, shape) in inputs {
-        let buffer = lowerer.buffer(shape.iter().product());
+        let buffer = lowerer.buffer(elements(shape)?)?;
         lowerer.fixed[buffer] = true;
         lowerer.values.insert(
             (*name).to_owned(),
@@ -151,11 +211,23 @@ pub(crate) fn lower(
     })
 }
 
-impl Lowerer<'_> {
-    fn buffer(&mut self, len: usize) -> BufferId {
+impl Lowerer {
+    /// A new zeroed buffer of `len` numbers, within the plan's limits.
+    fn buffer(&mut self, len: usize) -> Lowered<BufferId> {
+        let allocated = self
+            .allocated
+            .checked_add(len)
+            .filter(|&all| len <= MAX_ELEMENTS && all <= MAX_PLAN_ELEMENTS)
+            .ok_or_else(|| {
+                Unsupported(format!(
+                    "a plan of more than {MAX_PLAN_ELEMENTS} numbers (a buffer of {len})"
+                ))
+            })?;
+        self.allocated = allocated;
         self.buffers.push(vec![0.0; len]);
         self.fixed.push(false);
-        self.buffers.len() - 1
+        self.constant.push(false);
+        Ok(self.buffers.len() - 1)
     }
 
     fn constant(&mut self, tensor: &pb::TensorProto) -> Lowered<Value> {
@@ -170,11 +242,25 @@ impl Lowerer<'_> {
         let shape = tensor
             .dims
             .iter()
-            .map(|&d| usize::try_from(d).map_err(|_| Unsupported(format!("dimension {d}"))))
+            .map(|&d| dimension(d))
             .collect::<Lowered<Vec<usize>>>()?;
-        let count: usize = shape.iter().product();
+        if shape.len() > MAX_RANK {
+            return unsupported(format!("{} has rank {}", tensor.name, shape.len()));
+        }
+        // Integer constants may be empty (no axes); float ones become buffers.
+        let count = match tensor.data_type {
+            FLOAT => elements(&shape)?,
+            _ => shape
+                .iter()
+                .try_fold(1usize, |count, &d| count.checked_mul(d))
+                .filter(|&count| count <= MAX_ELEMENTS)
+                .ok_or_else(|| Unsupported(format!("{} of shape {shape:?}", tensor.name)))?,
+        };
         match tensor.data_type {
             FLOAT => {
+                if !tensor.raw_data.is_empty() && tensor.raw_data.len() != count * 4 {
+                    return unsupported(format!("{} has a ragged raw_data", tensor.name));
+                }
                 let values: Vec<f32> = if tensor.raw_data.is_empty() {
                     tensor.float_data.clone()
                 } else {
@@ -191,9 +277,10 @@ impl Lowerer<'_> {
                         values.len()
                     ));
                 }
-                let buffer = self.buffer(0);
+                let buffer = self.buffer(values.len())?;
                 self.buffers[buffer] = values;
                 self.fixed[buffer] = true;
+                self.constant[buffer] = true;
                 Ok(Value::Tensor {
                     buffer,
                     shape,
@@ -202,6 +289,9 @@ impl Lowerer<'_> {
                 })
             }
             INT64 => {
+                if !tensor.raw_data.is_empty() && tensor.raw_data.len() != count * 8 {
+                    return unsupported(format!("{} has a ragged raw_data", tensor.name));
+                }
                 let values: Vec<i64> = if tensor.raw_data.is_empty() {
                     tensor.int64_data.clone()
                 } else {
@@ -243,7 +333,7 @@ impl Lowerer<'_> {
                 boolean,
             } => {
                 let (c, h, w) = (shape[1], shape[2], shape[3]);
-                let to = self.buffer(c * h * w);
+                let to = self.buffer(elements(shape)?)?;
                 self.steps.push(Step::NhwcToNchw {
                     from: buffer,
                     to,
@@ -284,23 +374,31 @@ impl Lowerer<'_> {
                 shape,
                 layout: Layout::Standard,
                 boolean: false,
-            } if self.fixed[*buffer] && !self.is_graph_input(name) => {
-                Ok((self.buffers[*buffer].clone(), shape.clone()))
-            }
+            } if self.constant[*buffer] => Ok((self.buffers[*buffer].clone(), shape.clone())),
             _ => unsupported(format!("{name} must be a float constant")),
         }
     }
 
-    fn is_graph_input(&self, name: &str) -> bool {
-        self.graph.input.iter().any(|i| i.name == name)
-            && !self.graph.initializer.iter().any(|i| i.name == name)
-    }
-
-    fn define(&mut self, name: &str, value: Value) {
+    /// Names `value`. A tensor's shape must hold between one and [`MAX_ELEMENTS`] numbers
+    /// (and its buffer as many): every size later derived from it stays in range.
+    fn define(&mut self, name: &str, value: Value) -> Lowered<()> {
+        if let Value::Tensor { buffer, shape, .. } = &value {
+            let count = elements(shape)?;
+            if shape.len() > MAX_RANK || self.buffers[*buffer].len() < count {
+                return unsupported(format!("{name}: shape {shape:?} for its buffer"));
+            }
+        }
         self.values.insert(name.to_owned(), value);
+        Ok(())
     }
 
-    fn define_tensor(&mut self, name: &str, buffer: BufferId, shape: Vec<usize>, layout: Layout) {
+    fn define_tensor(
+        &mut self,
+        name: &str,
+        buffer: BufferId,
+        shape: Vec<usize>,
+        layout: Layout,
+    ) -> Lowered<()> {
         self.define(
             name,
             Value::Tensor {
@@ -309,7 +407,7 @@ impl Lowerer<'_> {
                 layout,
                 boolean: false,
             },
-        );
+        )
     }
 
     fn push(&mut self, output: &str, step: Step) {
@@ -344,21 +442,29 @@ impl Lowerer<'_> {
                     return unsupported("a Constant without a tensor value");
                 };
                 let value = self.constant(tensor)?;
-                self.define(output, value);
+                self.define(output, value)?;
             }
             "Identity" => {
                 let value = self.value(first()?)?.clone();
-                self.define(output, value);
+                self.define(output, value)?;
             }
             "Conv" => self.conv(node, &attributes, first()?, output)?,
             "MaxPool" => self.max_pool(&attributes, first()?, output)?,
             "Relu" => self.relu(first()?, output)?,
             "Flatten" => {
                 let (buffer, shape) = self.tensor(first()?)?;
-                let axis = normalise_axis(attributes.int("axis").unwrap_or(1), shape.len() + 1)?;
+                // Axis in [-rank, rank]: a negative one counts from the end, rank itself
+                // leaves an inner dimension of 1.
+                let rank = shape.len();
+                let axis = attributes.int("axis").unwrap_or(1);
+                let axis = if axis < 0 { axis + rank as i64 } else { axis };
+                let axis = usize::try_from(axis)
+                    .ok()
+                    .filter(|&a| a <= rank)
+                    .ok_or_else(|| Unsupported(format!("Flatten axis {axis} of rank {rank}")))?;
                 let outer: usize = shape[..axis].iter().product();
                 let inner: usize = shape[axis..].iter().product();
-                self.define_tensor(output, buffer, vec![outer, inner], Layout::Standard);
+                self.define_tensor(output, buffer, vec![outer, inner], Layout::Standard)?;
             }
             "Reshape" => {
                 let (buffer, shape) = self.tensor(first()?)?;
@@ -372,11 +478,11 @@ impl Lowerer<'_> {
             }
             "Squeeze" | "Unsqueeze" => {
                 let value = self.standard(first()?)?;
-                let axes = match input(1) {
-                    Some(name) => self.ints(name)?,
-                    None => attributes.ints("axes").unwrap_or_default(),
-                };
+                let axes = self.axes(&attributes, input(1), 13)?;
                 let squeeze = node.op_type == "Squeeze";
+                if !squeeze && axes.is_empty() {
+                    return unsupported("an Unsqueeze without axes");
+                }
                 match value {
                     Value::Tensor { buffer, shape, .. } => {
                         let reshaped = squeeze_shape(&shape, &axes, squeeze)?;
@@ -390,7 +496,7 @@ impl Lowerer<'_> {
                                 values,
                                 shape: reshaped,
                             },
-                        );
+                        )?;
                     }
                 }
             }
@@ -411,7 +517,7 @@ impl Lowerer<'_> {
                 }
                 match self.standard(first()?)? {
                     Value::Tensor { buffer, shape, .. } => {
-                        self.define_tensor(output, buffer, shape, Layout::Standard)
+                        self.define_tensor(output, buffer, shape, Layout::Standard)?
                     }
                     Value::Ints { .. } => return unsupported("a cast of integers"),
                 }
@@ -439,8 +545,35 @@ impl Lowerer<'_> {
                 layout: Layout::Standard,
                 boolean,
             },
-        );
-        Ok(())
+        )
+    }
+
+    /// The `axes` of a Squeeze, Unsqueeze or Reduce: an attribute before `input_from` (the
+    /// operator set that made it an input), the constant second input from then on.
+    fn axes(
+        &self,
+        attributes: &Attributes<'_>,
+        input: Option<&str>,
+        input_from: i64,
+    ) -> Lowered<Vec<i64>> {
+        let attribute = attributes.ints("axes");
+        if self.opset >= input_from {
+            if attribute.is_some() {
+                return unsupported(format!(
+                    "an axes attribute at opset {} (an input from {input_from})",
+                    self.opset
+                ));
+            }
+            input.map_or(Ok(Vec::new()), |name| self.ints(name))
+        } else {
+            if input.is_some() {
+                return unsupported(format!(
+                    "an axes input at opset {} (an attribute before {input_from})",
+                    self.opset
+                ));
+            }
+            Ok(attribute.unwrap_or_default())
+        }
     }
 
     fn conv(
@@ -493,10 +626,12 @@ impl Lowerer<'_> {
         }
         let strides = positive(attributes.ints("strides").unwrap_or(vec![1, 1]), 2)?;
         let pads = non_negative(attributes.ints("pads").unwrap_or(vec![0; 4]), 4)?;
+        // Each term at most MAX_ELEMENTS (2^24): the sums cannot wrap even in 32 bits.
         let (padded_h, padded_w) = (h + pads[0] + pads[2], w + pads[1] + pads[3]);
         if padded_h < kh || padded_w < kw {
             return unsupported("a kernel larger than its padded input");
         }
+        let padded_len = elements(&[padded_h, padded_w, c])?;
         let out = [
             (padded_h - kh) / strides[0] + 1,
             (padded_w - kw) / strides[1] + 1,
@@ -523,7 +658,7 @@ impl Lowerer<'_> {
                 }
             }
         }
-        let padded = self.buffer(padded_h * padded_w * c);
+        let padded = self.buffer(padded_len)?;
         self.steps.push(Step::Pad {
             from: buffer,
             to: padded,
@@ -532,7 +667,7 @@ impl Lowerer<'_> {
             padded_width: padded_w,
             from_nchw: layout == Layout::Standard,
         });
-        let to = self.buffer(out[0] * out[1] * oc);
+        let to = self.buffer(elements(&[out[0], out[1], oc])?)?;
         let shape = ConvShape {
             padded_width: padded_w,
             in_channels: c,
@@ -554,8 +689,7 @@ impl Lowerer<'_> {
                 out: to,
             },
         );
-        self.define_tensor(output, to, vec![1, oc, out[0], out[1]], Layout::Nhwc);
-        Ok(())
+        self.define_tensor(output, to, vec![1, oc, out[0], out[1]], Layout::Nhwc)
     }
 
     fn max_pool(&mut self, attributes: &Attributes<'_>, input: &str, output: &str) -> Lowered<()> {
@@ -593,7 +727,7 @@ impl Lowerer<'_> {
             (h - kernel[0]) / strides[0] + 1,
             (w - kernel[1]) / strides[1] + 1,
         ];
-        let to = self.buffer(out[0] * out[1] * c);
+        let to = self.buffer(elements(&[out[0], out[1], c])?)?;
         // A pool right after a convolution that only it reads is folded into that step
         // (`ConvPool`), where its windows do not overlap vertically.
         let fold = match self.producer.get(input) {
@@ -601,14 +735,17 @@ impl Lowerer<'_> {
                 match &self.steps[index] {
                     Step::Conv {
                         shape, pool: None, ..
-                    } => Some((index, kernel[0] * shape.out[1] * shape.out_channels)),
+                    } => Some((
+                        index,
+                        elements(&[kernel[0], shape.out[1], shape.out_channels])?,
+                    )),
                     _ => None,
                 }
             }
             _ => None,
         };
         if let Some((index, scratch_len)) = fold {
-            let scratch = self.buffer(scratch_len);
+            let scratch = self.buffer(scratch_len)?;
             let lanes = self.winograd_lanes;
             let mut winograd_buffers = None;
             if let Step::Conv {
@@ -647,6 +784,7 @@ impl Lowerer<'_> {
                     // border is (the padding step writes only the map's own rows).
                     let needed = layer.padded_rows_needed() * row;
                     if self.buffers[*padded].len() < needed {
+                        self.allocated += needed - self.buffers[*padded].len();
                         self.buffers[*padded].resize(needed, 0.0);
                     }
                     *winograd = Some(WinogradConv {
@@ -660,7 +798,7 @@ impl Lowerer<'_> {
             }
             if let Some([transformed_len, products_len]) = winograd_buffers {
                 let (transformed, products) =
-                    (self.buffer(transformed_len), self.buffer(products_len));
+                    (self.buffer(transformed_len)?, self.buffer(products_len)?);
                 if let Step::Conv {
                     winograd: Some(winograd),
                     ..
@@ -671,8 +809,7 @@ impl Lowerer<'_> {
                 }
             }
             self.producer.insert(output.to_owned(), index);
-            self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
-            return Ok(());
+            return self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
         }
         self.push(
             output,
@@ -685,8 +822,7 @@ impl Lowerer<'_> {
                 out,
             },
         );
-        self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
-        Ok(())
+        self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc)
     }
 
     /// A Relu right after a convolution or a dense layer that only it reads is folded into
@@ -705,8 +841,7 @@ impl Lowerer<'_> {
             if folded {
                 let value = self.value(input)?.clone();
                 self.producer.insert(output.to_owned(), index);
-                self.define(output, value);
-                return Ok(());
+                return self.define(output, value);
             }
         }
         let value = self.value(input)?.clone();
@@ -719,8 +854,8 @@ impl Lowerer<'_> {
         else {
             return unsupported("a Relu of something that is not a float tensor");
         };
-        let len = shape.iter().product();
-        let to = self.buffer(len);
+        let len = elements(&shape)?;
+        let to = self.buffer(len)?;
         self.push(
             output,
             Step::Relu {
@@ -729,18 +864,14 @@ impl Lowerer<'_> {
                 len,
             },
         );
-        self.define_tensor(output, to, shape, layout);
-        Ok(())
+        self.define_tensor(output, to, shape, layout)
     }
 
     fn transpose(&mut self, attributes: &Attributes<'_>, input: &str, output: &str) -> Lowered<()> {
         let (buffer, shape) = self.tensor(input)?;
         let rank = shape.len();
         let perm: Vec<usize> = match attributes.ints("perm") {
-            Some(perm) => perm
-                .iter()
-                .map(|&p| usize::try_from(p).map_err(|_| Unsupported(format!("perm {p}"))))
-                .collect::<Lowered<_>>()?,
+            Some(perm) => perm.iter().map(|&p| dimension(p)).collect::<Lowered<_>>()?,
             None => (0..rank).rev().collect(),
         };
         let mut sorted = perm.clone();
@@ -758,7 +889,7 @@ impl Lowerer<'_> {
             return unsupported(format!("rank {rank}"));
         }
         let strides = standard_strides(&shape);
-        let to = self.buffer(shape.iter().product());
+        let to = self.buffer(elements(&shape)?)?;
         let source = Strided::new(
             &transposed,
             &perm.iter().map(|&p| strides[p]).collect::<Vec<_>>(),
@@ -771,8 +902,7 @@ impl Lowerer<'_> {
                 to,
             },
         );
-        self.define_tensor(output, to, transposed, Layout::Standard);
-        Ok(())
+        self.define_tensor(output, to, transposed, Layout::Standard)
     }
 
     fn gather(
@@ -808,10 +938,16 @@ impl Lowerer<'_> {
         gathered.extend(&shape[axis + 1..]);
         let outer: usize = shape[..axis].iter().product();
         let inner: usize = shape[axis + 1..].iter().product();
-        if outer * picked.len() > 4096 {
+        if outer
+            .checked_mul(picked.len())
+            .is_none_or(|slices| slices > 4096)
+        {
             return unsupported("a gather of more than 4096 slices");
         }
-        let to = self.buffer(gathered.iter().product());
+        if gathered.len() > MAX_RANK {
+            return unsupported(format!("a gather into rank {}", gathered.len()));
+        }
+        let to = self.buffer(elements(&gathered)?)?;
         for o in 0..outer {
             for (n, &i) in picked.iter().enumerate() {
                 self.steps.push(Step::Copy {
@@ -823,8 +959,7 @@ impl Lowerer<'_> {
                 });
             }
         }
-        self.define_tensor(output, to, gathered, Layout::Standard);
-        Ok(())
+        self.define_tensor(output, to, gathered, Layout::Standard)
     }
 
     fn concat(
@@ -855,14 +990,19 @@ impl Lowerer<'_> {
             if !same {
                 return unsupported(format!("concatenating {shape:?} to {first:?}"));
             }
-            joined[axis] += shape[axis];
+            joined[axis] = joined[axis]
+                .checked_add(shape[axis])
+                .ok_or_else(|| Unsupported("a concatenation too long".into()))?;
         }
         let outer: usize = first[..axis].iter().product();
         let inner: usize = first[axis + 1..].iter().product();
-        if outer * parts.len() > 4096 {
+        if outer
+            .checked_mul(parts.len())
+            .is_none_or(|slices| slices > 4096)
+        {
             return unsupported("a concatenation of more than 4096 slices");
         }
-        let to = self.buffer(joined.iter().product());
+        let to = self.buffer(elements(&joined)?)?;
         let row = joined[axis] * inner;
         for o in 0..outer {
             let mut at = 0;
@@ -878,8 +1018,7 @@ impl Lowerer<'_> {
                 at += len;
             }
         }
-        self.define_tensor(output, to, joined, Layout::Standard);
-        Ok(())
+        self.define_tensor(output, to, joined, Layout::Standard)
     }
 
     fn gemm(
@@ -915,7 +1054,7 @@ impl Lowerer<'_> {
         }
         let alpha = attributes.float("alpha").unwrap_or(1.0);
         let beta = attributes.float("beta").unwrap_or(1.0);
-        let mut relaid = vec![0.0; n * k];
+        let mut relaid = vec![0.0; elements(&[n, k])?];
         for row in 0..n {
             for col in 0..k {
                 let w = if transposed {
@@ -936,8 +1075,7 @@ impl Lowerer<'_> {
             }
             None => vec![0.0; n],
         };
-        self.dense(output, x, relaid, bias, vec![m, n]);
-        Ok(())
+        self.dense(output, x, relaid, bias, vec![m, n])
     }
 
     fn matmul(&mut self, a: &str, b: Option<&str>, output: &str) -> Lowered<()> {
@@ -952,7 +1090,7 @@ impl Lowerer<'_> {
         if xk != k {
             return unsupported(format!("A {x_shape:?} times B {w_shape:?}"));
         }
-        let mut relaid = vec![0.0; n * k];
+        let mut relaid = vec![0.0; elements(&[n, k])?];
         for row in 0..n {
             for col in 0..k {
                 relaid[row * k + col] = weights[col * n + row];
@@ -960,8 +1098,7 @@ impl Lowerer<'_> {
         }
         let mut shape = leading.to_vec();
         shape.push(n);
-        self.dense(output, x, relaid, vec![0.0; n], shape);
-        Ok(())
+        self.dense(output, x, relaid, vec![0.0; n], shape)
     }
 
     /// A dense layer on the rows of `x` (weights `[out][in]`) into a new value of `shape`,
@@ -973,12 +1110,21 @@ impl Lowerer<'_> {
         weights: Vec<f32>,
         bias: Vec<f32>,
         shape: Vec<usize>,
-    ) {
+    ) -> Lowered<()> {
         let outputs = bias.len();
-        let rows = shape.iter().product::<usize>() / outputs.max(1);
-        let inputs = weights.len() / outputs.max(1);
+        let count = elements(&shape)?;
+        if outputs == 0 || weights.is_empty() || !weights.len().is_multiple_of(outputs) {
+            return unsupported(format!(
+                "a dense layer of {} weights for {outputs} outputs",
+                weights.len()
+            ));
+        }
+        let rows = count / outputs;
+        let inputs = weights.len() / outputs;
+        // The panels' padded width: at most 64 more outputs than the layer has.
+        elements(&[outputs + 64, inputs])?;
         let weights = DenseWeights::from_rows(&weights, outputs, inputs, self.dense_width);
-        let to = self.buffer(rows * outputs);
+        let to = self.buffer(count)?;
         self.push(
             output,
             Step::Dense {
@@ -990,7 +1136,7 @@ impl Lowerer<'_> {
                 to,
             },
         );
-        self.define_tensor(output, to, shape, Layout::Standard);
+        self.define_tensor(output, to, shape, Layout::Standard)
     }
 
     fn binary(&mut self, op: &str, a: &str, b: Option<&str>, output: &str) -> Lowered<()> {
@@ -1038,7 +1184,7 @@ impl Lowerer<'_> {
             "Div" => BinaryOp::Div,
             _ => BinaryOp::Equal,
         };
-        let to = self.buffer(shape.iter().product());
+        let to = self.buffer(elements(&shape)?)?;
         self.push(
             output,
             Step::Binary {
@@ -1058,8 +1204,7 @@ impl Lowerer<'_> {
                 layout: Layout::Standard,
                 boolean: op == BinaryOp::Equal,
             },
-        );
-        Ok(())
+        )
     }
 
     fn fold_bias(&mut self, product: &str, addend: &str, output: &str) -> Lowered<bool> {
@@ -1072,6 +1217,15 @@ impl Lowerer<'_> {
         let Ok((constant, shape)) = self.weights(addend) else {
             return Ok(false);
         };
+        // The sum broadcasts to the product's shape only if the addend's rank is no higher
+        // (a `[1, n]` bias on a `[n]` product makes `[1, n]`): otherwise a Binary step.
+        let product_rank = match self.value(product)? {
+            Value::Tensor { shape, .. } => shape.len(),
+            Value::Ints { .. } => return Ok(false),
+        };
+        if shape.len() > product_rank {
+            return Ok(false);
+        }
         let Step::Dense {
             bias, relu: false, ..
         } = &self.steps[index]
@@ -1088,7 +1242,7 @@ impl Lowerer<'_> {
         }
         let value = self.value(product)?.clone();
         self.producer.insert(output.to_owned(), index);
-        self.define(output, value);
+        self.define(output, value)?;
         Ok(true)
     }
 
@@ -1105,12 +1259,16 @@ impl Lowerer<'_> {
         if rank > MAX_RANK {
             return unsupported(format!("rank {rank}"));
         }
-        let axes = match axes_input {
-            Some(name) => self.ints(name)?,
-            None => attributes.ints("axes").unwrap_or_default(),
-        };
+        // ReduceSum took its axes as an input from opset 13, ReduceMax from 18; the
+        // `noop_with_empty_axes` attribute came with the input.
+        let input_from = if node.op_type == "ReduceMax" { 18 } else { 13 };
+        let axes = self.axes(attributes, axes_input, input_from)?;
+        let noop = attributes.int("noop_with_empty_axes");
+        if noop.is_some() && self.opset < input_from {
+            return unsupported(format!("noop_with_empty_axes at opset {}", self.opset));
+        }
         let axes = if axes.is_empty() {
-            if attributes.int("noop_with_empty_axes").unwrap_or(0) != 0 {
+            if noop.unwrap_or(0) != 0 {
                 return self.alias(input, output, buffer, shape);
             }
             (0..rank).collect::<Vec<_>>()
@@ -1146,7 +1304,7 @@ impl Lowerer<'_> {
         } else {
             ReduceOp::Sum
         };
-        let to = self.buffer(kept.iter().product());
+        let to = self.buffer(elements(&kept)?)?;
         self.push(
             output,
             Step::Reduce {
@@ -1156,8 +1314,11 @@ impl Lowerer<'_> {
                 to,
             },
         );
-        self.define_tensor(output, to, reduced, Layout::Standard);
-        Ok(())
+        if reduced.is_empty() {
+            // A reduction to a scalar: the engine's values have at least one dimension.
+            return unsupported("a reduction to a scalar");
+        }
+        self.define_tensor(output, to, reduced, Layout::Standard)
     }
 
     fn lstm(&mut self, node: &pb::NodeProto, attributes: &Attributes<'_>) -> Lowered<()> {
@@ -1193,7 +1354,8 @@ impl Lowerer<'_> {
         let (w, w_shape) = self.weights(input(1).ok_or_else(|| Unsupported("no W".into()))?)?;
         let (r, r_shape) = self.weights(input(2).ok_or_else(|| Unsupported("no R".into()))?)?;
         let units = r_shape.last().copied().unwrap_or(0);
-        if w_shape != [1, 4 * units, features] || r_shape != [1, 4 * units, units] {
+        // units and features come from constants' shapes (at most MAX_ELEMENTS each).
+        if units == 0 || w_shape != [1, 4 * units, features] || r_shape != [1, 4 * units, units] {
             return unsupported(format!("W {w_shape:?}, R {r_shape:?}"));
         }
         if let Some(hidden) = attributes.int("hidden_size")
@@ -1214,6 +1376,8 @@ impl Lowerer<'_> {
         }
         // One dense layer on [x, h]: weights [gate][x ..., h ...].
         let width = features + units;
+        // The panels' padded width: at most 64 more rows than the gates.
+        elements(&[gates + 64, width])?;
         let mut weights = vec![0.0; gates * width];
         for g in 0..gates {
             weights[g * width..g * width + features]
@@ -1231,16 +1395,16 @@ impl Lowerer<'_> {
                     Ok(buffer)
                 }
                 None => {
-                    let zero = lowerer.buffer(units);
+                    let zero = lowerer.buffer(units)?;
                     lowerer.fixed[zero] = true;
                     Ok(zero)
                 }
             }
         };
         let (h_in, c_in) = (state(self, 5)?, state(self, 6)?);
-        let joined = self.buffer(width);
-        let gate_values = self.buffer(gates);
-        let (h_out, c_out) = (self.buffer(units), self.buffer(units));
+        let joined = self.buffer(width)?;
+        let gate_values = self.buffer(gates)?;
+        let (h_out, c_out) = (self.buffer(units)?, self.buffer(units)?);
         let weights = DenseWeights::from_rows(&weights, gates, width, self.dense_width);
         self.steps.push(Step::Lstm {
             x,
@@ -1254,13 +1418,13 @@ impl Lowerer<'_> {
             c_out,
         });
         if let Some(y) = output(0) {
-            self.define_tensor(y, h_out, vec![1, 1, 1, units], Layout::Standard);
+            self.define_tensor(y, h_out, vec![1, 1, 1, units], Layout::Standard)?;
         }
         if let Some(y_h) = output(1) {
-            self.define_tensor(y_h, h_out, vec![1, 1, units], Layout::Standard);
+            self.define_tensor(y_h, h_out, vec![1, 1, units], Layout::Standard)?;
         }
         if let Some(y_c) = output(2) {
-            self.define_tensor(y_c, c_out, vec![1, 1, units], Layout::Standard);
+            self.define_tensor(y_c, c_out, vec![1, 1, units], Layout::Standard)?;
         }
         Ok(())
     }
@@ -1308,18 +1472,20 @@ fn normalise_axis(axis: i64, rank: usize) -> Lowered<usize> {
         .ok_or_else(|| Unsupported(format!("axis {axis} of rank {rank}")))
 }
 
+/// `count` sizes from 1 to [`MAX_ELEMENTS`] (strides, kernels).
 fn positive(values: Vec<i64>, count: usize) -> Lowered<Vec<usize>> {
     if values.len() != count || values.iter().any(|&v| v < 1) {
         return unsupported(format!("{values:?}"));
     }
-    Ok(values.into_iter().map(|v| v as usize).collect())
+    values.into_iter().map(dimension).collect()
 }
 
+/// `count` sizes from 0 to [`MAX_ELEMENTS`] (paddings).
 fn non_negative(values: Vec<i64>, count: usize) -> Lowered<Vec<usize>> {
-    if values.len() != count || values.iter().any(|&v| v < 0) {
+    if values.len() != count {
         return unsupported(format!("{values:?}"));
     }
-    Ok(values.into_iter().map(|v| v as usize).collect())
+    values.into_iter().map(dimension).collect()
 }
 
 fn standard_strides(shape: &[usize]) -> Vec<usize> {
@@ -1354,18 +1520,21 @@ fn reshape(shape: &[usize], target: &[i64], allow_zero: bool) -> Lowered<Vec<usi
                     .get(d)
                     .ok_or_else(|| Unsupported("reshape 0 past the rank".into()))?,
             ),
-            t if t >= 0 => out.push(t as usize),
+            t if t >= 0 => out.push(dimension(t)?),
             _ => return unsupported(format!("reshape to {target:?}")),
         }
     }
-    let known: usize = out.iter().product();
+    let known = out
+        .iter()
+        .try_fold(1usize, |known, &d| known.checked_mul(d))
+        .ok_or_else(|| Unsupported(format!("reshape to {target:?}")))?;
     if let Some(d) = infer {
         if known == 0 || !total.is_multiple_of(known) {
             return unsupported(format!("reshape {shape:?} to {target:?}"));
         }
         out[d] = total / known;
     }
-    if out.iter().product::<usize>() != total {
+    if known != total && infer.is_none() {
         return unsupported(format!("reshape {shape:?} to {target:?}"));
     }
     Ok(out)

@@ -16,8 +16,12 @@
 pub mod isa;
 mod kernels;
 mod lower;
+pub mod onnx_builder;
+pub mod oracle;
 pub mod peak;
 mod plan;
+#[cfg(test)]
+mod proptest;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod simd;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
@@ -29,7 +33,7 @@ use std::path::{Path, PathBuf};
 use tract_onnx::pb;
 
 pub use isa::Isa;
-pub use lower::Unsupported;
+pub use lower::{MAX_ELEMENTS, MAX_PLAN_ELEMENTS, Unsupported};
 
 use plan::{BufferId, Step};
 
@@ -47,18 +51,18 @@ pub struct CompiledNetwork {
 }
 
 impl CompiledNetwork {
-    /// Lowers `graph` (of the file at `path`) for inputs of the given names and shapes, to
-    /// run with `isa`'s kernels. `isa` must be available on this CPU.
+    /// Lowers `model`'s graph (the file at `path`) for inputs of the given names and shapes,
+    /// to run with `isa`'s kernels. `isa` must be available on this CPU.
     pub(crate) fn lower(
         path: &Path,
-        graph: &pb::GraphProto,
+        model: &pb::ModelProto,
         inputs: &[(&str, &[usize])],
         isa: Isa,
     ) -> Result<Self, Unsupported> {
         if !isa.is_available() {
             return Err(Unsupported(format!("this CPU cannot run {isa} kernels")));
         }
-        let lowering = lower::lower(graph, inputs, isa.dense_panel_width(), isa.winograd_lanes())?;
+        let lowering = lower::lower(model, inputs, isa.dense_panel_width(), isa.winograd_lanes())?;
         let mut buffers = lowering.buffers;
         // Constants folded into the steps (weights, biases) need no buffer of their own.
         let mut used = vec![false; buffers.len()];
@@ -204,8 +208,9 @@ impl CompiledNetwork {
     }
 }
 
-// The one `unsafe` of the engine: calling the kernels compiled for an instruction set,
-// which is sound only on a CPU that has it.
+// Calling the kernels compiled for an instruction set is sound only on a CPU that has it.
+// (The kernels' own `unsafe` blocks, in `simd`, `winograd` and `window_asm`, rest on bounds
+// each kernel checks once before its loops, with checked arithmetic.)
 #[allow(unsafe_code)]
 fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
     #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
@@ -409,7 +414,7 @@ mod tests {
         let (path, proto) = cnn_fixture();
         let graph = proto.graph.as_ref().expect("graph");
         let network =
-            CompiledNetwork::lower(&path, graph, &CNN_INPUTS, Isa::Portable).expect("lowers");
+            CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, Isa::Portable).expect("lowers");
         let pools = graph.node.iter().filter(|n| n.op_type == "MaxPool").count();
         let folded: Vec<_> = network
             .steps
@@ -439,9 +444,8 @@ mod tests {
     #[test]
     fn the_cnn_fixture_counts_the_multiply_adds_of_the_papers_layers() {
         let (path, proto) = cnn_fixture();
-        let graph = proto.graph.as_ref().expect("graph");
         let network =
-            CompiledNetwork::lower(&path, graph, &CNN_INPUTS, Isa::Portable).expect("lowers");
+            CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, Isa::Portable).expect("lowers");
         // Output pixels times a 5x5 window times input and output channels, per layer. The
         // top camera's second convolution has 15 rows, of which its 2x2 pool reads 14: the
         // fifteenth is never computed, and not counted.
@@ -456,10 +460,9 @@ mod tests {
     #[ignore = "profiling aid: cargo test --release -p dribble-controller profile -- --ignored --nocapture"]
     fn profile_the_cnn_fixture() {
         let (path, proto) = cnn_fixture();
-        let graph = proto.graph.as_ref().expect("graph");
         for isa in Isa::available() {
             let mut network =
-                CompiledNetwork::lower(&path, graph, &CNN_INPUTS, isa).expect("lowers");
+                CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, isa).expect("lowers");
             let report = network.profile(2000);
             let total: std::time::Duration = report.iter().map(|(_, t, _)| *t).sum();
             let peak = peak::multiply_adds_per_second(isa);

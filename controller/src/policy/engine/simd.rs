@@ -481,11 +481,19 @@ pub(crate) fn conv_rows<
 ) -> bool {
     let oc = shape.out_channels;
     let group = VECS * V::LANES;
+    // Every size below is checked arithmetic: a crafted shape makes a product wrap, and a
+    // wrapped bound would pass (the lowering caps sizes too; this check stands alone).
+    let fits = |end: Option<usize>, len: usize| end.is_some_and(|end| end <= len);
+    let weights_needed = shape.kernel[0]
+        .checked_mul(shape.kernel[1])
+        .and_then(|n| n.checked_mul(shape.in_channels))
+        .and_then(|n| n.checked_mul(oc));
     if oc == 0
         || !oc.is_multiple_of(group)
         || (IC != 0 && IC != shape.in_channels)
         || (KW != 0 && KW != shape.kernel[1])
-        || weights.len() < shape.kernel[0] * shape.kernel[1] * shape.in_channels * oc
+        || !fits(weights_needed, weights.len())
+        || bias.len() < oc
         || !weights
             .as_ptr()
             .addr()
@@ -496,13 +504,23 @@ pub(crate) fn conv_rows<
     let [_, ow] = shape.out;
     // Every block's inputs inside `padded`, checked once here rather than per kernel row.
     let ([kh, kw], [sy, sx]) = (shape.kernel, shape.stride);
-    let row = shape.padded_width * shape.in_channels;
-    let rows = out.len() / (ow * oc).max(1);
-    if ow > 0
-        && rows > 0
-        && (((ow - 1) * sx + kw) * shape.in_channels > row
-            || ((first_row + rows - 1) * sy + kh) * row > padded.len())
-    {
+    let (Some(row), Some(out_row)) = (
+        shape.padded_width.checked_mul(shape.in_channels),
+        ow.checked_mul(oc),
+    ) else {
+        return false;
+    };
+    let rows = out.len() / out_row.max(1);
+    let window_width = (ow.saturating_sub(1))
+        .checked_mul(sx)
+        .and_then(|n| n.checked_add(kw))
+        .and_then(|n| n.checked_mul(shape.in_channels));
+    let window_rows = first_row
+        .checked_add(rows.saturating_sub(1))
+        .and_then(|n| n.checked_mul(sy))
+        .and_then(|n| n.checked_add(kh))
+        .and_then(|n| n.checked_mul(row));
+    if ow > 0 && rows > 0 && !(fits(window_width, row) && fits(window_rows, padded.len())) {
         return false;
     }
     for (i, out_row) in out.chunks_exact_mut(ow * oc).enumerate() {
@@ -769,7 +787,11 @@ pub(crate) fn dense<V: Vector, const VECS: usize>(
         || x.len() < k
         || y.len() < outputs
         || bias.len() < outputs
-        || panels.len() < outputs.div_ceil(width) * k * width
+        || outputs
+            .div_ceil(width)
+            .checked_mul(k)
+            .and_then(|n| n.checked_mul(width))
+            .is_none_or(|needed| panels.len() < needed)
         || !panels
             .as_ptr()
             .addr()

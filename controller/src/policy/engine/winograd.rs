@@ -82,15 +82,30 @@ impl Layer {
         [in_channels, out_channels]: [usize; 2],
         tiles @ [th, tw]: [usize; 2],
     ) -> Option<Self> {
+        // Sizes from a model file: every product checked, so none wraps on a 32-bit robot.
+        let product = |factors: &[usize]| {
+            factors
+                .iter()
+                .try_fold(1usize, |n, &f| n.checked_mul(f))
+                .filter(|&n| n <= isize::MAX as usize / 4)
+        };
+        let rows = (th.checked_sub(1)?).checked_mul(4)?.checked_add(8)?;
         let applies = kernel == [5, 5]
             && stride == [2, 2]
             && pool_kernel == [2, 2]
             && pool_stride == [2, 2]
-            && th > 0
             && tw > 0
-            && 4 * (tw - 1) + 8 <= padded_width;
+            && (tw - 1)
+                .checked_mul(4)
+                .and_then(|n| n.checked_add(8))
+                .is_some_and(|n| n <= padded_width)
+            && product(&[padded_width, padded_rows.max(rows), in_channels]).is_some()
+            && product(&[POINTS, tw, 4, in_channels, 2]).is_some()
+            && product(&[POINTS, tw, out_channels, 2]).is_some()
+            && product(&[POINTS, 4, in_channels, out_channels]).is_some()
+            && product(&[th, tw, out_channels]).is_some();
         applies.then(|| Self {
-            padded: [padded_width, padded_rows.max(4 * (th - 1) + 8)],
+            padded: [padded_width, padded_rows.max(rows)],
             in_channels,
             out_channels,
             tiles,
@@ -238,20 +253,29 @@ mod vector {
         ) else {
             return false;
         };
+        // Checked arithmetic throughout: these bounds are what every unchecked offset below
+        // rests on (`Layer::new` refuses sizes whose products wrap).
+        let fits = |factors: &[usize], len: usize| {
+            factors
+                .iter()
+                .try_fold(1usize, |n, &f| n.checked_mul(f))
+                .is_some_and(|n| n <= len)
+        };
+        let reach = |tiles: usize| tiles.checked_sub(1).map(|t| 4 * t + 8);
         if ic == 0
             || !ic.is_multiple_of(V::LANES)
             || oc == 0
             || !oc.is_multiple_of(VECS * V::LANES)
             || tw < P
-            || padded.len() < rows * width * ic
-            || rows < 4 * (th - 1) + 8
-            || width < 4 * (tw - 1) + 8
-            || weights.len() < POINTS * 4 * ic * oc
+            || !fits(&[rows, width, ic], padded.len())
+            || reach(th).is_none_or(|needed| rows < needed)
+            || reach(tw).is_none_or(|needed| width < needed)
+            || !fits(&[POINTS, 4, ic, oc], weights.len())
             || !weights
                 .as_ptr()
                 .addr()
                 .is_multiple_of(V::LANES * size_of::<f32>())
-            || out.len() < th * tw * oc
+            || !fits(&[th, tw, oc], out.len())
             || bias.len() < oc
         {
             return false;
