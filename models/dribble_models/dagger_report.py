@@ -21,6 +21,8 @@ import sys
 from pathlib import Path
 
 from .manifest import load
+from .selection import Candidate, read_selection
+from .selection import choose as choose_candidate
 
 #: The paper's best test error (R-CNN) and most goals in 20 test episodes (R-CNN).
 PAPER_TEST_ERROR = 0.14
@@ -77,7 +79,7 @@ def fraction(pair: tuple[int, int] | None) -> str:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| iteration | round recorded with (beta) | round: episodes, rows, goals | validation error | test error | goals (test) | median time to goal | goals (held-out 90..99) |",
+        "| iteration | round recorded with (beta) | round: episodes, rows, goals | validation error | test error | goals (test) | median time to goal | goals /10 (selection: seeds 90..99) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
@@ -106,7 +108,7 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
     test_goals = [r["goals"][0] if r["goals"] else float("nan") for r in rows]
     held_goals = [r["held_out"][0] * 2 if r["held_out"] else float("nan") for r in rows]
     goal_axis.plot(iterations, test_goals, "o-", color="tab:green", label="goals, 20 test episodes")
-    goal_axis.plot(iterations, held_goals, "s--", color="tab:olive", label="goals, held-out 90..99 (x2, per 20)")
+    goal_axis.plot(iterations, held_goals, "s--", color="tab:olive", label="goals, selection seeds 90..99 (x2, per 20)")
     goal_axis.axhline(PAPER_GOALS, color="tab:green", linestyle=":", linewidth=1, label=f"paper's best: {PAPER_GOALS} goals")
     goal_axis.set_xlabel("DAgger iteration (0: behaviour cloning)")
     goal_axis.set_ylabel("goals per 20 episodes", color="tab:green")
@@ -128,14 +130,18 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
 
 
 def choose(rows: list[dict]) -> dict:
-    """Most goals on the held-out training episodes, then the lowest validation error."""
-
-    def key(row: dict):
-        held = row["held_out"][0] if row["held_out"] else -1
-        validation = row["validation_error"] if row["validation_error"] is not None else float("inf")
-        return (-held, validation)
-
-    return min(rows, key=key)
+    """The iteration to ship, by the one rule of `selection.choose` (selection goals, then
+    validation error) on each iteration's select.json."""
+    candidates = [
+        Candidate(
+            name=str(row["iteration"]),
+            selection=read_selection(Path(row["directory"]) / "select.json"),
+            validation_error=row["validation_error"],
+        )
+        for row in rows
+    ]
+    chosen = choose_candidate(candidates)
+    return next(row for row in rows if str(row["iteration"]) == chosen.name)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,7 @@
-"""An episode that `dribble record --mcap` writes reads back with the `mcap` package (an
-independent reader): the channels, their schemas, how many messages each holds, and time order."""
+"""An episode that `dribble record --mcap` writes reads back with the `mcap` package and
+`protobuf` (independent readers): the channels, their schemas, how many messages each holds,
+time order, and the payloads decoded (images' sizes, thumbnails, poses and commands against
+the dataset recorded beside them)."""
 
 import json
 import os
@@ -7,7 +9,9 @@ import subprocess
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
 from test_dataset import dribble_binary
@@ -50,11 +54,29 @@ def episode(tmp_path_factory):
             (channel.topic, schema, channel.message_encoding, message.log_time, message.data)
             for schema, channel, message in reader.iter_messages(log_time_order=False)
         ]
-    return summary, messages
+    dataset = dict(np.load(tmp / "dataset" / "episode_10003.npz"))
+    return summary, messages, dataset
+
+
+def decoded(messages, topic: str) -> list[tuple[int, object]]:
+    """(log time, message) of every message on a protobuf `topic`, decoded with the schema
+    the file carries (a FileDescriptorSet), not with classes of our own."""
+    chosen = [m for m in messages if m[0] == topic]
+    schema = chosen[0][1]
+    files = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    pool = descriptor_pool.DescriptorPool()
+    for file in files.file:
+        pool.Add(file)
+    message_class = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+    return [(m[3], message_class.FromString(m[4])) for m in chosen]
+
+
+def yaw(orientation) -> float:
+    return float(np.arctan2(2 * (orientation.w * orientation.z + orientation.x * orientation.y), 1 - 2 * (orientation.y**2 + orientation.z**2)))
 
 
 def test_every_channel_is_there_with_its_schema(episode):
-    summary, messages = episode
+    summary, messages, _ = episode
     channels = {c.topic: c for c in summary.channels.values()}
     assert set(channels) == set(CHANNELS)
     for topic, (schema_name, schema_encoding, message_encoding) in CHANNELS.items():
@@ -68,7 +90,7 @@ def test_every_channel_is_there_with_its_schema(episode):
 
 
 def test_message_counts_follow_the_rates_of_a_three_second_episode(episode):
-    _, messages = episode
+    _, messages, dataset = episode
     counts = Counter(m[0] for m in messages)
     # 100 Hz motion cycles, 30 Hz cameras (thumbnails every frame, images at 10 Hz), 30 Hz state.
     assert 295 <= counts["/motion/command"] <= 301, counts
@@ -84,7 +106,7 @@ def test_message_counts_follow_the_rates_of_a_three_second_episode(episode):
 
 
 def test_messages_are_in_simulated_time_order_and_end_with_the_outcome(episode):
-    _, messages = episode
+    _, messages, dataset = episode
     times = [m[3] for m in messages]
     assert times == sorted(times)
     assert times[0] == 0 and 2.9e9 <= times[-1] <= 3.1e9  # the simulated clock, not the wall's
@@ -94,7 +116,7 @@ def test_messages_are_in_simulated_time_order_and_end_with_the_outcome(episode):
 
 
 def test_commands_say_new_repeated_or_stop_and_stay_normalised(episode):
-    _, messages = episode
+    _, messages, dataset = episode
     commands = [json.loads(m[4]) for m in messages if m[0] == "/motion/command"]
     kinds = Counter(c["kind"] for c in commands)
     assert set(kinds) <= {"new", "repeated", "stop"}
@@ -102,6 +124,66 @@ def test_commands_say_new_repeated_or_stop_and_stay_normalised(episode):
     assert kinds["repeated"] > 150, kinds
     for c in commands:
         assert all(-1.0 <= c[k] <= 1.0 for k in ("forward", "left", "turn")), c
+
+
+@pytest.mark.parametrize(
+    "topic, size, encoding, bytes_per_pixel",
+    [
+        ("/camera/top", (640, 480), "yuyv", 2),
+        ("/camera/bottom", (320, 240), "yuyv", 2),
+        ("/policy/thumbnail/top", (160, 120), "mono8", 1),
+        ("/policy/thumbnail/bottom", (80, 60), "mono8", 1),
+    ],
+)
+def test_images_decode_with_their_sizes_steps_and_encodings(episode, topic, size, encoding, bytes_per_pixel):
+    _, messages, dataset = episode
+    for log_time, image in decoded(messages, topic):
+        assert (image.width, image.height, image.encoding) == (*size, encoding), topic
+        assert image.step == size[0] * bytes_per_pixel, topic
+        assert len(image.data) == image.step * image.height, topic
+        assert image.timestamp.seconds * 10**9 + image.timestamp.nanos == log_time, topic
+
+
+def test_every_thumbnail_the_dataset_holds_is_one_the_file_shows(episode):
+    _, messages, dataset = episode
+    for topic, key in (("/policy/thumbnail/top", "top"), ("/policy/thumbnail/bottom", "bottom")):
+        shown = {image.data for _, image in decoded(messages, topic)}
+        rows = dataset[key]
+        assert len(rows) > 80, key
+        missing = [i for i, row in enumerate(rows) if row.tobytes() not in shown]
+        assert not missing, f"{key}: dataset rows {missing[:5]} are in no {topic} message"
+
+
+def test_poses_are_those_of_the_dataset_at_the_same_simulated_time(episode):
+    _, messages, dataset = episode
+    times_ns = np.round(dataset["time_s"] * 1e9).astype(np.int64)
+    for topic, key in (("/robot/pose", "robot_pose"), ("/ball/pose", "ball")):
+        poses = decoded(messages, topic)
+        matched = 0
+        for log_time, pose in poses:
+            assert pose.frame_id == "field", topic
+            row = np.flatnonzero(np.abs(times_ns - log_time) < 1000)
+            if len(row) == 0:
+                continue
+            matched += 1
+            want = dataset[key][row[0]]
+            got = [pose.pose.position.x, pose.pose.position.y]
+            assert np.allclose(got, want[:2], atol=1e-5), (topic, log_time, got, want)
+            if key == "robot_pose":
+                difference = (yaw(pose.pose.orientation) - float(want[2]) + np.pi) % (2 * np.pi) - np.pi
+                assert abs(difference) < 1e-5, (log_time, yaw(pose.pose.orientation), want)
+        # State is logged at 30 Hz, the dataset at every computed command: most meet.
+        assert matched >= 0.8 * len(poses), (topic, matched, len(poses))
+
+
+def test_computed_commands_are_the_dataset_rows_in_order(episode):
+    _, messages, dataset = episode
+    new = [json.loads(m[4]) for m in messages if m[0] == "/motion/command"]
+    new = [c for c in new if c["kind"] == "new"]
+    labels = dataset["command"]
+    assert len(new) == len(labels), (len(new), len(labels))
+    for command, label in zip(new, labels):
+        assert np.allclose([command["forward"], command["left"], command["turn"]], label, atol=1e-6), (command, label)
 
 
 def test_the_shipped_layout_shows_only_channels_the_files_have():
@@ -125,7 +207,11 @@ def test_the_shipped_layout_shows_only_channels_the_files_have():
 
 def test_eval_live_serves_the_same_channels_over_foxglove_websocket(tmp_path):
     """`dribble eval --live 0` advertises every channel to a Foxglove WebSocket client and
-    streams commands to it, paced to the simulated clock."""
+    streams commands to it, paced to the simulated clock: a second of simulated commands
+    takes at least most of a second of wall time to arrive (unpaced, they would arrive in
+    milliseconds)."""
+    import time
+
     from websockets.sync.client import connect
 
     process = subprocess.Popen(
@@ -154,13 +240,19 @@ def test_eval_live_serves_the_same_channels_over_foxglove_websocket(tmp_path):
                     assert channel["schemaName"] == CHANNELS[channel["topic"]][0], channel
             command = next(i for i, topic in topics.items() if topic == "/motion/command")
             ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": command}]}))
-            received = []
-            while len(received) < 20:
+            received = []  # (wall time s, simulated log time ns, command)
+            while len(received) < 2 or received[-1][1] - received[0][1] < 1_000_000_000:
                 frame = ws.recv(timeout=10)
                 if isinstance(frame, bytes) and frame[0] == 1:  # opcode 1: message data
                     assert int.from_bytes(frame[1:5], "little") == 7
-                    received.append(json.loads(frame[13:]))
-            assert all(c["kind"] in ("new", "repeated", "stop") for c in received)
+                    log_time = int.from_bytes(frame[5:13], "little")
+                    received.append((time.monotonic(), log_time, json.loads(frame[13:])))
+            assert all(c["kind"] in ("new", "repeated", "stop") for _, _, c in received)
+            simulated_s = (received[-1][1] - received[0][1]) / 1e9
+            wall_s = received[-1][0] - received[0][0]
+            print(f"\nlive: {len(received)} commands, {simulated_s:.2f} s simulated in {wall_s:.2f} s")
+            assert 90 <= len(received) <= 110, len(received)  # 100 Hz
+            assert wall_s >= 0.8 * simulated_s, (wall_s, simulated_s)
     finally:
         process.kill()
         process.wait()

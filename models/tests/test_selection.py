@@ -1,0 +1,81 @@
+"""The one rule that chooses the shipped model and a DAgger iteration (selection.py), as
+results.py and dagger_report.py both apply it."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from dribble_models import dagger_report, results
+from dribble_models.selection import Candidate, SelectionError, choose, read_selection
+
+
+def write_run(path: Path, seeds, goals: set[int]) -> Path:
+    episodes = [{"seed": s, "outcome": "goal" if s in goals else "time_limit"} for s in seeds]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"engine": "compiled (avx2+fma)", "episodes": episodes}))
+    return path
+
+
+def model(tmp_path: Path, name: str, selected: set[int] | None, tested: set[int], validation: float) -> dict:
+    directory = tmp_path / name
+    if selected is not None:
+        write_run(directory / "select.json", range(90, 100), selected)
+    write_run(directory / "eval.json", range(10000, 10020), tested)
+    return {"directory": str(directory), "training": {"validation_error": validation}}
+
+
+def test_selection_goals_decide_even_where_the_test_episodes_say_otherwise(tmp_path):
+    # "few" scores more on the test episodes; "many" on the selection episodes. The test
+    # episodes are for reporting only: "many" is chosen, whatever its validation error.
+    rows = [
+        model(tmp_path, "few", {90, 91}, set(range(10000, 10018)), 0.10),
+        model(tmp_path, "many", {90, 91, 92, 93}, {10000}, 0.30),
+    ]
+    assert Path(results.choose(rows)["directory"]).name == "many"
+    assert "4 goals in 10 selection episodes" in rows[1]["selection"]
+    iterations = [
+        {"iteration": 1, "directory": rows[0]["directory"], "validation_error": 0.10},
+        {"iteration": 2, "directory": rows[1]["directory"], "validation_error": 0.30},
+    ]
+    assert dagger_report.choose(iterations)["iteration"] == 2
+
+
+def test_a_tie_goes_to_the_lower_validation_error_and_a_missing_run_ranks_last(tmp_path):
+    rows = [
+        model(tmp_path, "never-evaluated", None, set(range(10000, 10020)), 0.01),
+        model(tmp_path, "worse", {90, 91}, set(), 0.20),
+        model(tmp_path, "better", {95, 96}, set(), 0.15),
+    ]
+    assert Path(results.choose(rows)["directory"]).name == "better"
+    assert "no selection run" in rows[0]["selection"]
+    iterations = [{"iteration": i, "directory": r["directory"], "validation_error": r["training"]["validation_error"]} for i, r in enumerate(rows)]
+    assert dagger_report.choose(iterations)["iteration"] == 2
+
+
+def test_test_seeds_in_a_selection_file_are_refused(tmp_path):
+    for seeds in ([90, 10005], [20000, 30042]):
+        path = write_run(tmp_path / f"{seeds[1]}.json", seeds, set())
+        with pytest.raises(SelectionError, match="reporting only"):
+            read_selection(path)
+
+
+def test_candidates_on_different_seeds_cannot_be_compared(tmp_path):
+    a = read_selection(write_run(tmp_path / "a.json", range(90, 100), {90}))
+    b = read_selection(write_run(tmp_path / "b.json", range(20000, 20050), {20000}))
+    assert a.seeds != b.seeds
+    with pytest.raises(SelectionError, match="different selection seeds"):
+        choose([Candidate("a", a, 0.1), Candidate("b", b, 0.1)])
+    with pytest.raises(SelectionError):
+        choose([])
+
+
+def test_the_committed_choice_follows_the_rule():
+    """models/policy/SHIPPED is what the rule picks from the committed rows."""
+    policy = Path(__file__).resolve().parents[1] / "policy"
+    shipped = (policy / "SHIPPED").read_text().strip()
+    rows = []
+    for directory in sorted(p for p in policy.iterdir() if (p / "policy.toml").is_file()):
+        manifest = results.load(directory / "policy.toml")
+        rows.append({"directory": str(directory), "training": manifest["training"]})
+    assert Path(results.choose(rows)["directory"]).name == shipped
