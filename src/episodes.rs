@@ -35,9 +35,29 @@ impl FromStr for Episodes {
     }
 }
 
+/// An episode's time limit from the command line: simulated seconds, finite and positive
+/// (NaN, infinite, zero or negative limits would make an episode end at once or never).
+pub fn time_limit(text: &str) -> Result<f32, String> {
+    match text.trim().parse::<f32>() {
+        Ok(seconds) if seconds.is_finite() && seconds > 0.0 => Ok(seconds),
+        _ => Err(format!(
+            "{text:?} is not a time limit: a positive, finite number of simulated seconds"
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_time_limit_is_a_positive_finite_number_of_seconds() {
+        assert_eq!(time_limit("90"), Ok(90.0));
+        assert_eq!(time_limit(" 0.5"), Ok(0.5));
+        for bad in ["NaN", "nan", "inf", "-inf", "0", "-1", "1e39", "", "ninety"] {
+            assert!(time_limit(bad).is_err(), "{bad:?} accepted");
+        }
+    }
 
     #[test]
     fn parses_names_and_ranges() {

@@ -26,6 +26,7 @@ use crate::episodes::Episodes;
 use crate::foxglove_episodes::FoxgloveArgs;
 use crate::trajectory_file::write_trajectories;
 use crate::trajectory_plot::{plot_trajectories, title};
+use dribble_sim::expert::Teacher;
 
 #[derive(Debug, Args)]
 pub struct EvalArgs {
@@ -45,8 +46,12 @@ pub struct EvalArgs {
     /// Render the cameras even for the expert (slower; it does not look at them).
     #[arg(long)]
     render: bool,
-    /// Time limit per episode, simulated seconds.
-    #[arg(long, default_value_t = 90.0)]
+    /// Which teacher `--driver expert` is: `paper` (reads the ball's true position) or
+    /// `observable` (knows the ball only while a camera shows it, and where it last saw it).
+    #[arg(long, default_value_t = Teacher::Paper)]
+    expert: Teacher,
+    /// Time limit per episode, simulated seconds (positive and finite).
+    #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
     time_limit: f32,
     #[command(flatten)]
     controller: ControllerOptions,
@@ -61,9 +66,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     };
     let policy_path = (args.driver != "expert").then(|| PathBuf::from(&args.driver));
     match &policy_path {
-        None => {
-            println!("driver: the scripted expert (ground truth)")
-        }
+        None => match args.expert {
+            Teacher::Paper => println!("driver: the paper's expert (ground truth)"),
+            Teacher::Observable => println!(
+                "driver: the observable teacher (the ball only through its cameras, its own pose from ground truth)"
+            ),
+        },
         Some(path) => {
             let manifest = PolicyManifest::load(path)?;
             println!(
@@ -112,7 +120,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         };
         let result = match &policy_path {
             None => {
-                let expert = Expert::new(ExpertConfig::default(), FieldGeometry::SPL);
+                let expert = Expert::teaching(
+                    args.expert,
+                    ExpertConfig::default(),
+                    FieldGeometry::SPL,
+                    config.cameras,
+                );
                 run_episode_observed(
                     &setup,
                     &config,
@@ -170,7 +183,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     if let Some(engine) = &engine {
         println!("engine: {engine}");
     }
-    println!("goals: {} of {}", goals.len(), results.len());
+    let (low, high) = crate::goal_rate::wilson_interval(goals.len(), results.len());
+    println!(
+        "goals: {} of {} (95 % Wilson interval {low:.2}-{high:.2})",
+        goals.len(),
+        results.len()
+    );
     if lost > 0 {
         println!("episodes failed because the controller was lost: {lost}");
     }

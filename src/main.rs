@@ -5,6 +5,7 @@ mod controller_session;
 mod episodes;
 mod eval_command;
 mod foxglove_episodes;
+mod goal_rate;
 mod inspect_command;
 mod plot_command;
 mod plot_image;

@@ -20,6 +20,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
 use crate::foxglove_episodes::FoxgloveArgs;
+use dribble_sim::expert::Teacher;
 
 /// Who labels the states a learned policy visits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -37,8 +38,8 @@ pub struct RecordArgs {
     /// already there are kept and skipped, so an interrupted recording resumes.
     #[arg(long, default_value = "dataset")]
     out: PathBuf,
-    /// Time limit per episode, simulated seconds.
-    #[arg(long, default_value_t = 90.0)]
+    /// Time limit per episode, simulated seconds (positive and finite).
+    #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
     time_limit: f32,
     /// `expert` (it drives with ground truth), or the path of a policy's `policy.toml`: it
     /// drives through its controller and `--label-with` labels the states it visits.
@@ -51,6 +52,12 @@ pub struct RecordArgs {
     /// of the policy's (DAgger's β; drawn from a generator seeded by the episode).
     #[arg(long, default_value_t = 0.0)]
     beta: f64,
+    /// Which teacher drives (with `--driver expert`) or labels (with `--label-with
+    /// expert`): `paper`, the paper's expert, which reads the ball's true position; or
+    /// `observable`, which knows the ball only while a camera shows it and where it last
+    /// saw it (DESIGN.md, "Teachers"). Recorded in dataset.json.
+    #[arg(long, default_value_t = Teacher::Paper)]
+    expert: Teacher,
     #[command(flatten)]
     controller: ControllerOptions,
     #[command(flatten)]
@@ -89,6 +96,13 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         Some(index) => {
             // Resuming: the new episodes must come from the same simulator and expert.
             let mut differences = Vec::new();
+            let recorded_teacher = index.teacher.as_deref().unwrap_or("paper");
+            if recorded_teacher != args.expert.name() {
+                differences.push(format!(
+                    "teacher: {recorded_teacher} there, {} now",
+                    args.expert
+                ));
+            }
             config_differences("", &index.simulator, &simulator, &mut differences);
             config_differences("expert", &index.expert, &expert, &mut differences);
             let recorded_driver = index.driver.clone().unwrap_or_default();
@@ -111,6 +125,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             episodes: Vec::new(),
             content_hash: None,
             driver,
+            teacher: Some(args.expert.name().into()),
         },
     };
     let done = |seed: u64| {
@@ -152,7 +167,12 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         progress.set_message(format!("seed {seed}"));
         let setup = EpisodeSetup::from_seed(seed);
         let mut recording = EpisodeRecording::default();
-        let expert = Expert::new(expert_config, FieldGeometry::SPL);
+        let expert = Expert::teaching(
+            args.expert,
+            expert_config,
+            FieldGeometry::SPL,
+            config.cameras,
+        );
         let driver = match &policy {
             None => Driver::Expert(expert),
             Some((path, _)) => {

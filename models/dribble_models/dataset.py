@@ -40,6 +40,9 @@ class Dataset:
     directory: Path
     content_hash: str
     episodes: list[Episode]
+    # Who labelled the rows: "paper" (the expert on ground truth; also every dataset recorded
+    # before `dribble record --expert`) or "observable" (DESIGN.md, "Teachers").
+    teacher: str = "paper"
 
     @property
     def rows(self) -> int:
@@ -119,4 +122,4 @@ def load(directory: Path, require_seeds: list[int] | None = None) -> Dataset:
         if shapes != ((rows, 120, 160), (rows, 60, 80), (rows, 3)) or rows != entry["rows"]:
             raise DatasetError(f"{directory / entry['file']}: arrays {shapes} do not hold the {entry['rows']} rows dataset.json lists")
         episodes.append(episode)
-    return Dataset(directory, digest, episodes)
+    return Dataset(directory, digest, episodes, teacher=index.get("teacher") or "paper")

@@ -21,6 +21,8 @@ class TrainingRecord:
     dataset: str
     epochs: int
     dataset_hash: str | None = None
+    # Which teacher labelled the training rows ("paper" or "observable"; DESIGN.md, "Teachers").
+    teacher: str | None = None
     test_dataset_hash: str | None = None
     # (name, content hash) of every dataset trained on besides `dataset` (DAgger's rounds).
     added_datasets: list[tuple[str, str]] | None = None
@@ -92,7 +94,7 @@ class Manifest:
             ]
         lines += ["", "[training]", f"dataset = {_string(self.training.dataset)}", f"epochs = {self.training.epochs}"]
         t = self.training
-        for key in ("dataset_hash", "test_dataset_hash", "torch_version", "notes"):
+        for key in ("dataset_hash", "teacher", "test_dataset_hash", "torch_version", "notes"):
             if getattr(t, key) is not None:
                 lines.append(f"{key} = {_string(getattr(t, key))}")
         for key in ("best_epoch", "seed"):

@@ -593,13 +593,19 @@ def main(argv: list[str] | None = None) -> int:
     try:
         dataset = load(args.dataset)
         added = [load(directory) for directory in args.add_dataset]
+        mixed = sorted({d.teacher for d in (dataset, *added)})
+        if len(mixed) > 1:
+            raise DatasetError(f"the datasets were labelled by different teachers ({', '.join(mixed)}): a model learns from one")
         if args.test_dataset:
             # Checked now, read only after training: test data never reaches training.
-            test_seeds = {int(e["seed"]) for e in read_index(args.test_dataset)["episodes"]}
+            test_index = read_index(args.test_dataset)
+            if (test_index.get("teacher") or "paper") != dataset.teacher:
+                raise DatasetError(f"{args.test_dataset} is labelled by the {test_index.get('teacher') or 'paper'} teacher, the training data by the {dataset.teacher} one")
+            test_seeds = {int(e["seed"]) for e in test_index["episodes"]}
             for training_data in (dataset, *added):
                 if test_seeds & set(training_data.seeds()):
                     raise DatasetError(f"{args.test_dataset} shares episodes {sorted(test_seeds & set(training_data.seeds()))} with {training_data.directory}")
-        print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}", file=sys.stderr)
+        print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}, labelled by the {dataset.teacher} teacher", file=sys.stderr)
         for extra in added:
             print(f"  plus {extra.directory}: {len(extra.episodes)} episodes, {extra.rows} rows, hash {extra.content_hash[:12]}", file=sys.stderr)
         training = Training(args, dataset, added)
@@ -627,6 +633,7 @@ def main(argv: list[str] | None = None) -> int:
         dataset=str(args.dataset.name),
         epochs=training.epoch,
         dataset_hash=dataset.content_hash,
+        teacher=dataset.teacher,
         test_dataset_hash=test.content_hash if test else None,
         added_datasets=[(d.directory.name, d.content_hash) for d in added] or None,
         best_epoch=training.best["epoch"],

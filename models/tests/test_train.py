@@ -189,3 +189,24 @@ def test_a_modal_cnn_answers_the_hypothesis_it_chooses_and_learns_from_the_close
         errors = ((hypotheses - target[:, None, :]) ** 2).mean(dim=2)
         expected = 0.05 * errors.mean() + 0.1 * torch.nn.functional.cross_entropy(logits, torch.ones(5, dtype=torch.long))
         assert torch.allclose(winner_takes_all_loss(model, top, bottom, target), expected)
+
+
+def test_the_manifest_names_the_teacher_and_teachers_are_never_mixed(tmp_path, rng):
+    paper = write_dataset(tmp_path / "paper", [1, 2], 12, rng)
+    observable = write_dataset(tmp_path / "observable", [3, 4], 12, rng)
+    index = json.loads((observable / "dataset.json").read_text())
+    (observable / "dataset.json").write_text(json.dumps({**index, "teacher": "observable"}))
+    base = ["--kind", "cnn", "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    out = tmp_path / "cnn"
+    argv = base + ["--dataset", str(observable), "--out", str(out), "--checkpoint-dir", str(tmp_path / "c1")]
+    assert main(argv) == 0
+    assert 'teacher = "observable"' in (out / "policy.toml").read_text()
+    # A dataset recorded before there were two teachers is the paper's.
+    argv = base + ["--dataset", str(paper), "--out", str(tmp_path / "p"), "--checkpoint-dir", str(tmp_path / "c2")]
+    assert main(argv) == 0
+    assert 'teacher = "paper"' in (tmp_path / "p" / "policy.toml").read_text()
+    # Rows of both teachers, or a test set of the other one, are refused.
+    argv = base + ["--dataset", str(paper), "--add-dataset", str(observable), "--out", str(tmp_path / "m"), "--checkpoint-dir", str(tmp_path / "c3")]
+    assert main(argv) == 2
+    argv = base + ["--dataset", str(paper), "--test-dataset", str(observable), "--out", str(tmp_path / "t"), "--checkpoint-dir", str(tmp_path / "c4")]
+    assert main(argv) == 2

@@ -377,6 +377,10 @@ pub struct DatasetIndex {
     /// the mixing rule (DAgger). Absent for the expert's demonstrations.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub driver: Option<serde_json::Value>,
+    /// The teacher whose commands label the rows (`paper` or `observable`, DESIGN.md
+    /// "Teachers"); absent in files written before there were two, which the paper's labelled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub teacher: Option<String>,
 }
 
 impl DatasetIndex {

@@ -1,16 +1,63 @@
-//! The teacher: a B-Human-style striker with ground truth. A small state machine over the
-//! robot's and the ball's true poses: search (turn until the ball is in the top camera's
-//! view), approach (walk to a point behind the ball on the ball-to-goal line, going around
-//! the ball if the robot is on its wrong side), align (circle the ball until facing the
-//! goal), dribble (walk through the ball toward the goal, correcting sideways).
+//! The teacher: a B-Human-style striker. A small state machine over the robot's pose and
+//! the ball's: search (turn until the ball is in the top camera's view), approach (walk to
+//! a point behind the ball on the ball-to-goal line, going around the ball if the robot is
+//! on its wrong side), align (circle the ball until facing the goal), dribble (walk through
+//! the ball toward the goal, correcting sideways).
+//!
+//! Two teachers play it (DESIGN.md, "Teachers"; [`Teacher`]): the paper's reads the ball's
+//! true position always, and so searches by turning toward a ball no image shows; the
+//! observable one knows the ball only through its cameras ([`BallMemory`]), remembers where
+//! it last saw it, and searches to the side it last saw it on, or to the left before the
+//! first sighting. Both take their own pose from ground truth, standing in for
+//! self-localisation as in the paper.
 
 use core::f32::consts::PI;
 
 use dribble_controller::SpeedCommand;
 use glam::Vec2;
 
+use crate::ball_memory::{BallBelief, BallMemory};
+use crate::camera_geometry::CameraGeometry;
 use crate::field::FieldGeometry;
 use crate::pose::{FieldPose, wrap_angle};
+
+/// Which teacher labels and drives (DESIGN.md, "Teachers").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Teacher {
+    /// The paper's expert: the ball's true position at every decision.
+    #[default]
+    Paper,
+    /// Only what the cameras show, and where the ball was last seen.
+    Observable,
+}
+
+impl Teacher {
+    pub const ALL: [Self; 2] = [Self::Paper, Self::Observable];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Paper => "paper",
+            Self::Observable => "observable",
+        }
+    }
+}
+
+impl std::fmt::Display for Teacher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Teacher {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|teacher| teacher.name() == text)
+            .ok_or_else(|| format!("unknown teacher {text:?}: paper or observable"))
+    }
+}
 
 /// The expert's sub-behaviour, recorded with every command (DESIGN.md, "Dataset").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -68,13 +115,16 @@ impl Default for ExpertConfig {
     }
 }
 
-/// What the expert knows: the truth.
+/// The state of the world at a decision: the truth (the observable teacher reads the ball
+/// only through its cameras' geometry).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GroundTruth {
     pub robot: FieldPose,
     pub ball: Vec2,
     /// +1 to attack the goal at +x, -1 for the one at -x.
     pub target_side: f32,
+    /// Simulated time, seconds since the episode's start.
+    pub time_s: f64,
 }
 
 /// The striker.
@@ -83,14 +133,39 @@ pub struct Expert {
     config: ExpertConfig,
     field: FieldGeometry,
     phase: Phase,
+    /// The observable teacher's knowledge of the ball; `None` for the paper's.
+    memory: Option<BallMemory>,
 }
 
 impl Expert {
+    /// The paper's expert (ground truth).
     pub fn new(config: ExpertConfig, field: FieldGeometry) -> Self {
         Self {
             config,
             field,
             phase: Phase::Search,
+            memory: None,
+        }
+    }
+
+    /// The teacher `teacher`; the observable one sees through `cameras`.
+    pub fn teaching(
+        teacher: Teacher,
+        config: ExpertConfig,
+        field: FieldGeometry,
+        cameras: CameraGeometry,
+    ) -> Self {
+        let mut expert = Self::new(config, field);
+        if teacher == Teacher::Observable {
+            expert.memory = Some(BallMemory::new(cameras, field));
+        }
+        expert
+    }
+
+    pub fn teacher(&self) -> Teacher {
+        match self.memory {
+            None => Teacher::Paper,
+            Some(_) => Teacher::Observable,
         }
     }
 
@@ -105,10 +180,27 @@ impl Expert {
     /// Starts an episode afresh.
     pub fn reset(&mut self) {
         self.phase = Phase::Search;
+        if let Some(memory) = &mut self.memory {
+            memory.reset();
+        }
     }
 
     /// The next command, and the phase that produced it.
     pub fn decide(&mut self, truth: &GroundTruth) -> (SpeedCommand, Phase) {
+        let Some(memory) = &mut self.memory else {
+            return self.decide_knowing(truth);
+        };
+        match memory.perceive(truth.robot, truth.ball, truth.target_side, truth.time_s) {
+            BallBelief::At(ball) => self.decide_knowing(&GroundTruth { ball, ..*truth }),
+            BallBelief::Search { turn } => {
+                self.phase = Phase::Search;
+                (command(0.0, 0.0, turn), Phase::Search)
+            }
+        }
+    }
+
+    /// The state machine on a ball position taken as known.
+    fn decide_knowing(&mut self, truth: &GroundTruth) -> (SpeedCommand, Phase) {
         let robot = truth.robot;
         let ball = robot.to_robot(truth.ball.extend(0.0)).0.truncate();
         let ball_bearing = ball.y.atan2(ball.x);
@@ -246,7 +338,40 @@ mod tests {
             robot,
             ball,
             target_side: 1.0,
+            time_s: 0.0,
         }
+    }
+
+    #[test]
+    fn the_observable_teacher_searches_left_for_a_ball_no_camera_shows() {
+        let mut expert = Expert::teaching(
+            Teacher::Observable,
+            ExpertConfig::default(),
+            FieldGeometry::SPL,
+            CameraGeometry::nao(),
+        );
+        assert_eq!(expert.teacher(), Teacher::Observable);
+        // The ball to the right and behind: the paper's expert turns right, this one left.
+        let (command, phase) =
+            expert.decide(&truth(FieldPose::new(0.0, 0.0, 0.0), Vec2::new(-1.0, -2.0)));
+        assert_eq!(phase, Phase::Search);
+        assert_eq!(command.as_array(), [0.0, 0.0, 1.0]);
+        let mut paper = Expert::new(ExpertConfig::default(), FieldGeometry::SPL);
+        let (command, _) =
+            paper.decide(&truth(FieldPose::new(0.0, 0.0, 0.0), Vec2::new(-1.0, -2.0)));
+        assert_eq!(command.as_array(), [0.0, 0.0, -1.0]);
+        // A ball in view is approached as the paper's expert approaches it.
+        let seen = truth(FieldPose::new(0.0, 0.0, 0.0), Vec2::new(2.0, 0.1));
+        assert_eq!(expert.decide(&seen), paper.decide(&seen));
+    }
+
+    #[test]
+    fn teachers_are_named_on_the_command_line_as_in_the_manifests() {
+        for teacher in Teacher::ALL {
+            assert_eq!(teacher.name().parse::<Teacher>(), Ok(teacher));
+        }
+        assert!("oracle".parse::<Teacher>().is_err());
+        assert_eq!(Teacher::default(), Teacher::Paper);
     }
 
     #[test]

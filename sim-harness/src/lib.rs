@@ -6,6 +6,7 @@
 //! ([`top_view`], [`image_output`]). It depends on `dribble-controller`'s public types
 //! (frames, commands), never the reverse.
 
+pub mod ball_memory;
 pub mod camera_geometry;
 pub mod camera_model;
 pub mod controller_link;

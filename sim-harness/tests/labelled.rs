@@ -145,6 +145,7 @@ fn labels_are_the_experts_commands_for_the_states_the_policy_visited() {
             robot: FieldPose::new(pose[3 * i], pose[3 * i + 1], pose[3 * i + 2]),
             ball: glam::Vec2::new(ball[2 * i], ball[2 * i + 1]),
             target_side: setup.target_side,
+            time_s: 0.0, // the paper's expert does not read the clock
         };
         let (command, phase) = expert.decide(&truth);
         assert_eq!(command.as_array(), labels[3 * i..3 * i + 3], "row {i}");

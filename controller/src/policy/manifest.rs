@@ -128,6 +128,9 @@ pub struct TrainingRecord {
     pub dataset: String,
     /// The content hash of the training dataset (`dataset.json`'s `content_hash`).
     pub dataset_hash: Option<String>,
+    /// Which teacher labelled the training rows (`paper` or `observable`, DESIGN.md
+    /// "Teachers"); absent in manifests written before there were two: the paper's.
+    pub teacher: Option<String>,
     /// The content hash of the dataset `test_error` was measured on.
     pub test_dataset_hash: Option<String>,
     /// Datasets trained on besides `dataset`, every row of them (DAgger's aggregated
