@@ -21,12 +21,10 @@ use anyhow::{Context, bail, ensure};
 use clap::Args;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::realtime::{self, RealtimeRequest};
-use dribble_controller::test_pattern::TestPattern;
+use dribble_controller::test_pattern::{PatternCameras, TestPattern};
 use dribble_controller::transport::SimulatorPorts;
-use dribble_controller::transport::ipc::{Domain, Iceoryx2SimulatorPorts};
-use dribble_controller::{
-    BottomFrame, Clock, LoopConfig, MonotonicClock, MotionCommand, SyncConfig, Timestamp, TopFrame,
-};
+use dribble_controller::transport::ipc::{CommandMonitor, Domain, Iceoryx2SimulatorPorts};
+use dribble_controller::{Clock, LoopConfig, MonotonicClock, MotionCommand, SyncConfig, Timestamp};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::soak_faults::{Action, FaultPlan, FaultReport};
@@ -141,7 +139,16 @@ impl CommandWatch {
         }
     }
 
-    fn take(&mut self, command: MotionCommand, arrived: Timestamp) {
+    /// Counts `command`, which arrived at `arrived`; returns false (and counts nothing) for a
+    /// command already seen: across a publisher restart two subscribers overlap and both
+    /// deliver the commands of that moment.
+    fn take(&mut self, command: MotionCommand, arrived: Timestamp) -> bool {
+        if self
+            .last
+            .is_some_and(|last| command.sequence <= last.sequence)
+        {
+            return false;
+        }
         let second = &mut self.second;
         second.commands += 1;
         second.new_commands += u64::from(command.is_new());
@@ -159,6 +166,7 @@ impl CommandWatch {
         second.missed += u64::from(late || over_budget);
         self.latencies.push(latency.as_secs_f64() * 1e6);
         self.last = Some(command);
+        true
     }
 
     /// Closes the second: its latency quantiles, added to the totals.
@@ -295,7 +303,7 @@ fn start_controller(
         .with_context(|| format!("cannot start {}", binary.display()))
 }
 
-pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
+fn check_arguments(args: &SoakArgs) -> anyhow::Result<()> {
     ensure!(
         args.minutes.is_finite() && args.minutes > 0.0 && args.minutes <= 24.0 * 60.0,
         "--minutes must be in (0, 1440], got {}",
@@ -310,6 +318,120 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         "no policy at {}",
         args.policy.display()
     );
+    Ok(())
+}
+
+/// Waits (30 s at most) until the controller has opened its ports.
+fn wait_for_connection(
+    ports: &Iceoryx2SimulatorPorts,
+    controller: &mut ControllerProcess,
+    log: &Path,
+) -> anyhow::Result<()> {
+    let connect_deadline = Instant::now() + Duration::from_secs(30);
+    while !ports.controller_connected() {
+        if let Some(status) = controller.0.try_wait()? {
+            bail!(
+                "the controller exited ({status}) before connecting; its log: {}",
+                log.display()
+            );
+        }
+        ensure!(
+            Instant::now() < connect_deadline,
+            "the controller did not connect in 30 s; its log: {}",
+            log.display()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    Ok(())
+}
+
+/// This process (cameras and motion side) one priority below the controller, memory locked;
+/// a refusal is a warning.
+fn apply_realtime(controller_priority: u8) {
+    let report = realtime::apply(RealtimeRequest {
+        lock_memory: true,
+        fifo_priority: (controller_priority > 1).then(|| controller_priority - 1),
+        cpu: None,
+    });
+    println!(
+        "soak: this process (cameras and motion side): {}",
+        report.in_force_text()
+    );
+    for refusal in &report.refused {
+        tracing::warn!(event = "realtime_refused", setting = %refusal, action = "the soak runs on without it");
+    }
+}
+
+/// The camera driver's and the motion module's side of the soak: the camera publisher (which
+/// a fault closes and reopens), the motion side's bridge across that restart, and the cameras'
+/// schedule.
+struct RobotSide {
+    ports: Option<Iceoryx2SimulatorPorts>,
+    /// While the camera publisher is away the motion side reads on (on the robot they are
+    /// different processes): a monitor of its own bridges the restart, so a command the
+    /// controller sends meanwhile is counted, and a lost one is a gap.
+    motion_side: Option<CommandMonitor>,
+    cameras: PatternCameras,
+}
+
+impl RobotSide {
+    /// Does what a fault asks of the publisher.
+    fn act(
+        &mut self,
+        action: Action,
+        domain: &Domain,
+        watch: &mut CommandWatch,
+        plan: &mut FaultPlan,
+        clock: &MonotonicClock,
+    ) -> anyhow::Result<()> {
+        match action {
+            Action::None => {}
+            Action::ClosePublisher => {
+                self.motion_side = Some(
+                    CommandMonitor::open(domain, "soak-motion")
+                        .context("cannot open the motion side")?,
+                );
+                self.ports = None;
+            }
+            Action::ReopenPublisher => {
+                self.ports = Some(
+                    Iceoryx2SimulatorPorts::open(domain, "soak-cameras")
+                        .context("cannot reopen the cameras")?,
+                );
+                // What arrived before the new subscriber existed; the overlap is counted
+                // once (`CommandWatch::take`).
+                if let Some(mut monitor) = self.motion_side.take() {
+                    drain_monitor(&mut monitor, watch, Some(plan), clock)
+                        .context("cannot read the controller's commands")?;
+                }
+                // A new publisher numbers its frames from 0.
+                self.cameras.restart_numbering();
+            }
+        }
+        Ok(())
+    }
+
+    /// Publishes the frames due at `now` (painted in any case; sent while `publish`).
+    fn publish_due(&mut self, now: Timestamp, publish: bool) -> anyhow::Result<()> {
+        let due = self.cameras.poll(now);
+        if let Some(ports) = self.ports.as_mut().filter(|_| publish) {
+            if due.top {
+                ports
+                    .publish_top(self.cameras.top())
+                    .context("cannot publish a top frame")?;
+            }
+            if due.bottom {
+                ports
+                    .publish_bottom(self.cameras.bottom())
+                    .context("cannot publish a bottom frame")?;
+            }
+        }
+        Ok(())
+    }
+}
+
+pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
+    check_arguments(args)?;
     fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let domain_name = args
@@ -328,45 +450,17 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     let log = args.out.join("controller.log");
     let mut controller = ControllerProcess(start_controller(args, &policy, &domain_name, &log)?);
     let pid = controller.0.id();
-    let connect_deadline = Instant::now() + Duration::from_secs(30);
-    while !ports.controller_connected() {
-        if let Some(status) = controller.0.try_wait()? {
-            bail!(
-                "the controller exited ({status}) before connecting; its log: {}",
-                log.display()
-            );
-        }
-        ensure!(
-            Instant::now() < connect_deadline,
-            "the controller did not connect in 30 s; its log: {}",
-            log.display()
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    wait_for_connection(&ports, &mut controller, &log)?;
     println!(
         "soak: controller pid {pid} in domain {domain_name}, policy {}, {} min; log {}",
         args.policy.display(),
         args.minutes,
         log.display()
     );
-    let report = realtime::apply(RealtimeRequest {
-        lock_memory: true,
-        fifo_priority: (args.priority > 1).then(|| args.priority - 1),
-        cpu: None,
-    });
-    println!(
-        "soak: this process (cameras and motion side): {}",
-        report.in_force_text()
-    );
-    for refusal in &report.refused {
-        tracing::warn!(event = "realtime_refused", setting = %refusal, action = "the soak runs on without it");
-    }
+    apply_realtime(args.priority);
 
     let config = LoopConfig::default();
-    let camera_period = SyncConfig::default().camera_period;
     let clock = MonotonicClock;
-    let pattern = TestPattern::default();
-    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
     let mut watch = CommandWatch::new(&config);
     let csv_path = args.out.join("soak.csv");
     let mut csv = fs::File::create(&csv_path)
@@ -388,9 +482,15 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    let mut ports = Some(ports);
-    let mut next_top = (0u64, start);
-    let mut next_bottom = (0u64, start + camera_period / 2);
+    let mut side = RobotSide {
+        ports: Some(ports),
+        motion_side: None,
+        cameras: PatternCameras::new(
+            TestPattern::default(),
+            SyncConfig::default().camera_period,
+            start,
+        ),
+    };
     let mut next_sample = start + Duration::from_secs(1);
     let mut seconds: Vec<Second> = Vec::new();
     let progress = ProgressBar::new(duration.as_secs());
@@ -405,40 +505,17 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         }
         let mut publish = true;
         if let Some(plan) = plan.as_mut() {
-            match plan.poll(now) {
-                Ok(Action::None) => {}
-                Ok(Action::ClosePublisher) => ports = None,
-                Ok(Action::ReopenPublisher) => {
-                    match Iceoryx2SimulatorPorts::open(&domain, "soak-cameras") {
-                        Ok(reopened) => ports = Some(reopened),
-                        Err(error) => break Err(error).context("cannot reopen the cameras"),
-                    }
-                    // A new publisher numbers its frames from 0, and its command subscriber
-                    // starts with the newest command.
-                    (next_top.0, next_bottom.0) = (0, 0);
-                    watch.last = None;
-                }
+            let action = match plan.poll(now) {
+                Ok(action) => action,
                 Err(error) => break Err(error).context("a fault could not be injected"),
+            };
+            if let Err(error) = side.act(action, &domain, &mut watch, plan, &clock) {
+                break Err(error);
             }
             publish = plan.cameras_publish(now);
         }
-        if now >= next_top.1 {
-            if let Some(ports) = ports.as_mut().filter(|_| publish) {
-                pattern.paint(&mut top, next_top.0, now);
-                if let Err(error) = ports.publish_top(&top) {
-                    break Err(error).context("cannot publish a top frame");
-                }
-            }
-            next_top = (next_top.0 + 1, next_top.1 + camera_period);
-        }
-        if now >= next_bottom.1 {
-            if let Some(ports) = ports.as_mut().filter(|_| publish) {
-                pattern.paint(&mut bottom, next_bottom.0, now);
-                if let Err(error) = ports.publish_bottom(&bottom) {
-                    break Err(error).context("cannot publish a bottom frame");
-                }
-            }
-            next_bottom = (next_bottom.0 + 1, next_bottom.1 + camera_period);
+        if let Err(error) = side.publish_due(now, publish) {
+            break Err(error);
         }
         if now >= next_sample {
             let elapsed_s = now.saturating_since(start).as_secs_f64();
@@ -462,9 +539,14 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
             ));
         }
         // Commands until the next event, in waits of at most 1 ms.
-        let next_event = next_top.1.min(next_bottom.1).min(next_sample);
-        let Some(open) = ports.as_mut() else {
-            std::thread::sleep(Duration::from_millis(1));
+        let next_event = side.cameras.next_due().min(next_sample);
+        let Some(open) = side.ports.as_mut() else {
+            std::thread::sleep(Duration::from_micros(200));
+            if let Some(monitor) = side.motion_side.as_mut()
+                && let Err(error) = drain_monitor(monitor, &mut watch, plan.as_mut(), &clock)
+            {
+                break Err(error).context("cannot read the controller's commands");
+            }
             continue;
         };
         if let Err(error) = read_commands(open, &mut watch, plan.as_mut(), &clock, next_event) {
@@ -493,8 +575,9 @@ fn read_commands(
         let left = until.saturating_since(clock.now());
         if let Some(command) = ports.next_command(left.min(Duration::from_millis(1)))? {
             let now = clock.now();
-            watch.take(command, now);
-            if let Some(plan) = plan.as_deref_mut() {
+            if watch.take(command, now)
+                && let Some(plan) = plan.as_deref_mut()
+            {
                 plan.on_command(&command, now);
             }
         }
@@ -502,6 +585,73 @@ fn read_commands(
             return Ok(());
         }
     }
+}
+
+/// Reads every command waiting in `monitor`.
+fn drain_monitor(
+    monitor: &mut CommandMonitor,
+    watch: &mut CommandWatch,
+    mut plan: Option<&mut FaultPlan>,
+    clock: &MonotonicClock,
+) -> Result<(), dribble_controller::transport::TransportError> {
+    while let Some(command) = monitor.try_next()? {
+        let now = clock.now();
+        if watch.take(command, now)
+            && let Some(plan) = plan.as_deref_mut()
+        {
+            plan.on_command(&command, now);
+        }
+    }
+    Ok(())
+}
+
+/// The lines a controller prints about itself as it stops: ticks, frames, its tick time.
+fn controller_statistics(log: &str) -> Vec<&str> {
+    log.lines()
+        .filter(|line| {
+            ["ticks ", "frames accepted ", "tick time: "]
+                .iter()
+                .any(|start| line.starts_with(start))
+        })
+        .collect()
+}
+
+/// Every criterion the soak missed, in words (empty: it passed).
+fn failures(
+    args: &SoakArgs,
+    totals: &Second,
+    missed_share: f64,
+    growth: u64,
+    files: (u64, u64),
+    faults: Option<&[FaultReport]>,
+) -> Vec<String> {
+    let mut failures = Vec::new();
+    if totals.commands == 0 {
+        failures.push("no command arrived".to_owned());
+    }
+    if totals.lost > 0 {
+        failures.push(format!("{} commands lost", totals.lost));
+    }
+    if missed_share > args.max_missed_share {
+        failures.push(format!(
+            "{:.4} % of ticks missed their deadline (allowed {:.4} %)",
+            100.0 * missed_share,
+            100.0 * args.max_missed_share
+        ));
+    }
+    if growth > args.max_rss_growth_kib {
+        failures.push(format!(
+            "the controller's memory grew {growth} KiB after the warm-up (allowed {} KiB)",
+            args.max_rss_growth_kib
+        ));
+    }
+    if files.1 > files.0 {
+        failures.push(format!("open files grew from {} to {}", files.0, files.1));
+    }
+    for report in faults.unwrap_or_default().iter().filter(|r| !r.passed) {
+        failures.push(format!("fault {}: {}", report.kind.name(), report.detail));
+    }
+    failures
 }
 
 /// Prints and writes the summary; fails if a criterion is not met.
@@ -570,8 +720,16 @@ fn summarise(
         .iter()
         .map(|r| json!({"fault": r.kind.name(), "passed": r.passed, "detail": r.detail}))
         .collect();
+    // The controller's own account, printed as it stops (SIGTERM): ticks, frames and its tick
+    // time from inside the loop.
+    let controller_log = fs::read_to_string(args.out.join("controller.log")).unwrap_or_default();
+    let controller_statistics = controller_statistics(&controller_log);
+    for line in &controller_statistics {
+        println!("soak: the controller says: {line}");
+    }
     let summary = json!({
         "faults": fault_json,
+        "controller_statistics": controller_statistics,
         "policy": args.policy,
         "minutes": args.minutes,
         "commands": totals.commands,
@@ -598,32 +756,7 @@ fn summarise(
         args.out.join("soak.csv").display(),
         summary_path.display()
     );
-    let mut failures = Vec::new();
-    if totals.commands == 0 {
-        failures.push("no command arrived".to_owned());
-    }
-    if totals.lost > 0 {
-        failures.push(format!("{} commands lost", totals.lost));
-    }
-    if missed_share > args.max_missed_share {
-        failures.push(format!(
-            "{:.4} % of ticks missed their deadline (allowed {:.4} %)",
-            100.0 * missed_share,
-            100.0 * args.max_missed_share
-        ));
-    }
-    if growth > args.max_rss_growth_kib {
-        failures.push(format!(
-            "the controller's memory grew {growth} KiB after the warm-up (allowed {} KiB)",
-            args.max_rss_growth_kib
-        ));
-    }
-    if files.1 > files.0 {
-        failures.push(format!("open files grew from {} to {}", files.0, files.1));
-    }
-    for report in faults.unwrap_or_default().iter().filter(|r| !r.passed) {
-        failures.push(format!("fault {}: {}", report.kind.name(), report.detail));
-    }
+    let failures = failures(args, &totals, missed_share, growth, files, faults);
     if !failures.is_empty() {
         bail!("soak failed: {}", failures.join("; "));
     }
@@ -675,6 +808,18 @@ mod tests {
         assert_eq!((next.commands, next.lost, next.missed), (1, 0, 0));
         assert_eq!(watch.totals.commands, 7);
         assert_eq!(watch.all_latencies.len(), 7);
+    }
+
+    #[test]
+    fn a_command_seen_twice_counts_once_and_a_gap_across_a_restart_is_lost() {
+        let mut watch = CommandWatch::new(&LoopConfig::default());
+        assert!(watch.take(command(1, 10), at_us(10_100)));
+        // The second subscriber of a restart delivers 1 again, then 2 and 4.
+        assert!(!watch.take(command(1, 10), at_us(10_300)));
+        assert!(watch.take(command(2, 20), at_us(20_100)));
+        assert!(watch.take(command(4, 40), at_us(40_100)));
+        let second = watch.close_second(1.0, 100, 5);
+        assert_eq!((second.commands, second.lost), (3, 1));
     }
 
     #[test]

@@ -1,22 +1,28 @@
 //! Faults `dribble soak --faults` injects while the controller runs, and what each must do
 //! (DESIGN.md, README "Two processes"):
 //!
-//! - **camera pause**: both streams stop for 1 s. The controller stops the robot within the
-//!   100 ms silence limit and logs `cameras_silent`; when frames return it computes again and
-//!   logs `cameras_back`.
+//! - **camera pause**: both streams stop for 1 s. The controller stops the robot on its first
+//!   tick past the 100 ms silence limit ([`stop_within`]: the limit, one 10 ms tick and the
+//!   2 ms tick budget after the pause began) and logs `cameras_silent`; when frames return
+//!   it computes again and logs `cameras_back`.
 //! - **publisher restart**: the camera publisher goes away for 0.5 s and comes back as a new
-//!   process would, its sequence numbers from 0. The controller stops meanwhile, then follows
-//!   the new numbers (`camera_resynced`) and computes again.
+//!   process would, its sequence numbers from 0. The controller stops within the same bound,
+//!   then follows the new numbers (`camera_resynced`) and computes again. The motion side
+//!   reads on meanwhile, so a command lost during the restart is a gap in the sequence.
 //! - **second controller**: another controller started in the same domain refuses to start
 //!   ("another controller runs in it"); the running one is untouched (no command lost).
-//! - **policy replaced**: the policy's network file is replaced on disk. Nothing changes
-//!   until a restart (commands go on, no stop) and the controller logs `policy_file_changed`.
+//! - **policy replaced**: the policy's network file is replaced on disk by a valid network of
+//!   the same contract that answers one constant command ([`REPLACEMENT`]). Nothing changes
+//!   until a restart: commands go on, no stop, none of them is the replacement's, and the
+//!   controller logs `policy_file_changed`.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use dribble_controller::{MotionCommand, Timestamp};
+use dribble_controller::policy::engine::onnx_builder::{Attribute, floats, model, node};
+use dribble_controller::{LoopConfig, MotionCommand, SyncConfig, Timestamp};
+use prost::Message as _;
 use time::OffsetDateTime;
 use time::format_description::well_known::Rfc3339;
 
@@ -25,6 +31,47 @@ const PAUSE: Duration = Duration::from_secs(1);
 const RESTART_GAP: Duration = Duration::from_millis(500);
 /// How long after a fault the controller has to show its reaction.
 const SETTLE: Duration = Duration::from_secs(3);
+/// The command the replacement network answers whatever it sees (normalised forward, left,
+/// turn); the running fixture or trained policy never computes exactly this.
+pub const REPLACEMENT: [f32; 3] = [0.5, -0.375, 0.25];
+
+/// How soon after the cameras fall silent a stop must arrive: the controller's silence
+/// limit (3 camera periods, 100 ms, counted from the last frame, which came before the
+/// fault), then its next tick (10 ms) and that tick's budget (2 ms).
+pub fn stop_within() -> Duration {
+    let config = LoopConfig::default();
+    SyncConfig::default().silence_limit() + config.tick_period + config.budget
+}
+
+/// A network of the fixture's contract (top [1,1,120,160], bottom [1,1,60,80] in, command
+/// [1,3] out) that answers [`REPLACEMENT`]: both images are read (their maxima times zero),
+/// so a loader takes it as it would take a trained one.
+pub fn replacement_network() -> Vec<u8> {
+    let keep = [("keepdims", Attribute::Int(1))];
+    model(
+        17,
+        &[("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])],
+        vec![
+            node("ReduceMax", &["top"], &["top_max"], &keep),
+            node("ReduceMax", &["bottom"], &["bottom_max"], &keep),
+            node("Add", &["top_max", "bottom_max"], &["both"], &[]),
+            node(
+                "Flatten",
+                &["both"],
+                &["flat"],
+                &[("axis", Attribute::Int(1))],
+            ),
+            node("Mul", &["flat", "zero"], &["nothing"], &[]),
+            node("Add", &["nothing", "answer"], &["command"], &[]),
+        ],
+        vec![
+            floats("zero", &[], &[0.0]),
+            floats("answer", &[1, 3], &REPLACEMENT),
+        ],
+        &["command"],
+    )
+    .encode_to_vec()
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FaultKind {
@@ -69,6 +116,8 @@ struct Fault {
     wall_s: f64,
     second: Option<Child>,
     second_said: Option<(Option<i32>, String)>,
+    /// Computed commands after the fault that are the replacement network's answer.
+    replacement_answers: u32,
 }
 
 /// What the main loop must do now.
@@ -128,6 +177,7 @@ impl FaultPlan {
                 wall_s: f64::INFINITY,
                 second: None,
                 second_said: None,
+                replacement_answers: 0,
             })
             .collect();
         Self {
@@ -176,10 +226,8 @@ impl FaultPlan {
                     }
                     FaultKind::PolicyReplaced => {
                         // As a copy tool replaces a file: a new one renamed over the old.
-                        let mut bytes = std::fs::read(&self.network)?;
-                        bytes.extend_from_slice(b"replaced");
                         let staged = self.network.with_extension("onnx.new");
-                        std::fs::write(&staged, bytes)?;
+                        std::fs::write(&staged, replacement_network())?;
                         std::fs::rename(&staged, &self.network)?;
                     }
                 }
@@ -218,6 +266,12 @@ impl FaultPlan {
                 continue;
             }
             let since = now.saturating_since(fault.at);
+            if fault.kind == FaultKind::PolicyReplaced
+                && command.is_new()
+                && command.speed.as_array() == REPLACEMENT
+            {
+                fault.replacement_answers += 1;
+            }
             if since > SETTLE + PAUSE {
                 continue;
             }
@@ -245,24 +299,26 @@ impl FaultPlan {
             };
             let (passed, detail) = match fault.kind {
                 FaultKind::CameraPause => {
-                    let stopped = fault
-                        .first_stop
-                        .is_some_and(|d| d <= Duration::from_millis(150));
+                    let stopped = fault.first_stop.is_some_and(|d| d <= stop_within());
                     let silent = logged_after(controller_log, "event=cameras_silent", fault.wall_s);
                     (
                         stopped && fault.back.is_some() && logged && silent,
                         format!(
-                            "stopped after {}, computing again {} after the pause began; logged cameras_silent: {silent}, cameras_back: {logged}",
+                            "stopped after {} (allowed {} ms), computing again {} after the pause began; logged cameras_silent: {silent}, cameras_back: {logged}",
                             ms(fault.first_stop),
+                            stop_within().as_millis(),
                             ms(fault.back)
                         ),
                     )
                 }
                 FaultKind::PublisherRestart => (
-                    fault.back.is_some() && logged,
+                    fault.first_stop.is_some_and(|d| d <= stop_within())
+                        && fault.back.is_some()
+                        && logged,
                     format!(
-                        "stopped after {}, computing again {} after the publisher went away; logged camera_resynced: {logged}",
+                        "stopped after {} (allowed {} ms), computing again {} after the publisher went away; logged camera_resynced: {logged}",
                         ms(fault.first_stop),
+                        stop_within().as_millis(),
                         ms(fault.back)
                     ),
                 ),
@@ -291,10 +347,14 @@ impl FaultPlan {
                     }
                 }
                 FaultKind::PolicyReplaced => (
-                    logged && fault.first_stop.is_none() && fault.back.is_some(),
+                    logged
+                        && fault.first_stop.is_none()
+                        && fault.back.is_some()
+                        && fault.replacement_answers == 0,
                     format!(
-                        "commands went on (first stop after: {}); logged policy_file_changed: {logged}",
-                        ms(fault.first_stop)
+                        "commands went on (first stop after: {}); commands that were the new file's answer: {}; logged policy_file_changed: {logged}",
+                        ms(fault.first_stop),
+                        fault.replacement_answers
                     ),
                 ),
             };
@@ -331,6 +391,34 @@ fn logged_after(log: &str, event: &str, wall_s: f64) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
+    use dribble_controller::{BottomThumbnail, Policy, PolicyInput, TopThumbnail};
+
+    #[test]
+    fn the_replacement_is_a_policy_the_controller_would_load_and_it_answers_its_constant() {
+        let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/cnn");
+        let directory =
+            std::env::temp_dir().join(format!("dribble-replacement-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&directory);
+        std::fs::create_dir_all(&directory).expect("scratch directory");
+        std::fs::copy(fixture.join("policy.toml"), directory.join("policy.toml")).expect("copy");
+        std::fs::write(directory.join("policy.onnx"), replacement_network()).expect("write");
+        for engine in [Engine::Tract, Engine::Compiled] {
+            let options = EngineOptions { engine, isa: None };
+            let (mut policy, _) = OnnxPolicy::load_with(&directory.join("policy.toml"), options)
+                .expect("the replacement loads");
+            let (mut top, bottom) = (TopThumbnail::black(), BottomThumbnail::black());
+            top.as_bytes_mut().fill(200);
+            let out = policy
+                .step(PolicyInput {
+                    top: &top,
+                    bottom: &bottom,
+                })
+                .expect("a step");
+            assert_eq!([out.forward, out.left, out.turn], REPLACEMENT, "{engine:?}");
+        }
+        std::fs::remove_dir_all(directory).expect("clean up");
+    }
 
     #[test]
     fn only_events_after_the_fault_count() {

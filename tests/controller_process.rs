@@ -282,20 +282,36 @@ fn a_dead_simulator_gets_stops_and_a_new_one_carries_on() {
         (Duration::from_millis(90)..Duration::from_millis(150)).contains(&silence),
         "stop after {silence:?} of silence"
     );
-    // From then on a stop every tick period (10 ms), and nothing else: five more within a
-    // second (50 ms on an idle machine; the margin is for a loaded one, where the test's
-    // first version, three in 60 ms, failed while other builds ran beside it).
-    let mut stops = 0;
+    // From then on a stop every tick period, and nothing else: the next 20 commands are stops
+    // of consecutive sequence numbers (none left out) arriving a median 10 ms apart. Timed by
+    // arrival here (polled every millisecond): with the simulator gone the controller's clock
+    // (the simulator's) stands still, so every watchdog stop carries the same stamp.
+    let mut stops = vec![(Instant::now(), first_stop)];
     let watched = Instant::now();
-    while stops < 5 && watched.elapsed() < Duration::from_secs(1) {
+    while stops.len() < 21 && watched.elapsed() < Duration::from_secs(5) {
         if let Some(next) = monitor.try_next().expect("receive") {
             assert!(next.is_stop(), "only stops: {next:?}");
-            stops += 1;
+            stops.push((Instant::now(), next));
         }
         std::thread::sleep(Duration::from_millis(1));
     }
-    println!("{stops} more stops in {:?}", watched.elapsed());
-    assert_eq!(stops, 5, "a stop every tick period: {stops} in a second");
+    assert_eq!(stops.len(), 21, "20 more stops in 5 s");
+    let mut intervals_ms: Vec<f64> = stops
+        .windows(2)
+        .map(|pair| {
+            let ((then, a), (now, b)) = (pair[0], pair[1]);
+            assert_eq!(b.sequence, a.sequence + 1, "{a:?} then {b:?}");
+            now.duration_since(then).as_secs_f64() * 1e3
+        })
+        .collect();
+    intervals_ms.sort_by(f64::total_cmp);
+    let median_ms = intervals_ms[intervals_ms.len() / 2];
+    println!("20 more stops, consecutive sequence numbers, median {median_ms:.1} ms apart");
+    // The watchdog waits one tick period for a tick, then publishes: 10 ms and a little.
+    assert!(
+        (8.0..=14.0).contains(&median_ms),
+        "a stop every 10 ms tick: median {median_ms} ms ({intervals_ms:?})"
+    );
 
     // A new simulator finds the controller waiting, and cleans up after the dead one.
     let output = dribble(&[

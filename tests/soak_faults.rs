@@ -42,6 +42,7 @@ fn each_fault_gets_its_documented_answer() {
         ]
     );
     for fault in faults {
+        println!("{}: {}", fault["fault"], fault["detail"]);
         assert_eq!(fault["passed"], true, "{fault}");
     }
     assert_eq!(summary["lost"], 0, "{said}");

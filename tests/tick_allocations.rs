@@ -1,5 +1,7 @@
 //! The controller tick allocates nothing after start-up, with the test policy and with a
-//! real ONNX policy of each kind on the compiled engine.
+//! real ONNX policy of each kind on the compiled engine, on every instruction set this CPU
+//! runs (the SSE paths the robots take, with and without Winograd, included), with the
+//! once-a-second check of the policy files inside the counted ticks.
 //!
 //! A counting global allocator counts the allocations made on this test's thread while
 //! counting is switched on; the tick runs over random frames with drops, duplicates,
@@ -10,6 +12,8 @@ mod support;
 
 use std::time::Duration;
 
+use dribble_controller::policy::engine::Isa;
+use dribble_controller::policy::file_watch::PolicyFileWatch;
 use dribble_controller::policy::{BrightnessPolicy, Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::{
     CameraFrame, CameraInput, Clock, ControlLoop, LoopConfig, ManualClock, Policy, PolicyError,
@@ -110,16 +114,21 @@ impl<const W: usize, const H: usize> UnreliableCamera<W, H> {
     }
 }
 
-/// Runs `ticks` ticks of `policy` over unreliable cameras after a warm-up of 100; returns the
-/// allocations and bytes counted, and the loop.
-fn unreliable_ticks<P: Policy>(policy: P, ticks: u32) -> ((u64, u64), ControlLoop<P, ManualClock>) {
+/// Runs `ticks` ticks of `policy` over unreliable cameras after a warm-up of 100, calling
+/// `after_tick` with each tick's number; returns the allocations and bytes counted, and the
+/// loop.
+fn unreliable_ticks<P: Policy>(
+    policy: P,
+    ticks: u32,
+    mut after_tick: impl FnMut(u32),
+) -> ((u64, u64), ControlLoop<P, ManualClock>) {
     let mut rng = ChaCha8Rng::seed_from_u64(2016);
     let mut top = UnreliableCamera::<640, 480>::new(&mut rng);
     let mut bottom = UnreliableCamera::<320, 240>::new(&mut rng);
     let clock = ManualClock::default();
     let mut control = ControlLoop::new(LoopConfig::default(), policy, clock.clone());
     let mut run = |ticks: u32| {
-        for _ in 0..ticks {
+        for tick in 0..ticks {
             let input = CameraInput {
                 top: top.frame(&mut rng, &clock),
                 bottom: bottom.frame(&mut rng, &clock),
@@ -130,6 +139,7 @@ fn unreliable_ticks<P: Policy>(policy: P, ticks: u32) -> ((u64, u64), ControlLoo
                 clock.advance(Duration::from_millis(25));
             }
             control.wait_for_next_tick();
+            after_tick(tick);
         }
     };
     run(100); // warm-up
@@ -140,7 +150,7 @@ fn unreliable_ticks<P: Policy>(policy: P, ticks: u32) -> ((u64, u64), ControlLoo
 #[test]
 fn ten_thousand_ticks_allocate_nothing_after_start_up() {
     support::install_log_subscriber();
-    let ((allocations, bytes), control) = unreliable_ticks(FlakyPolicy::default(), 10_000);
+    let ((allocations, bytes), control) = unreliable_ticks(FlakyPolicy::default(), 10_000, |_| {});
     println!("allocations in 10,000 ticks after warm-up: {allocations} ({bytes} bytes)");
 
     let counters = *control.counters();
@@ -161,36 +171,61 @@ fn ten_thousand_ticks_allocate_nothing_after_start_up() {
 }
 
 #[test]
-fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_the_compiled_engine() {
+fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_set() {
     support::install_log_subscriber();
     let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    // The shipped policies are part of the repository: a missing one is a failure.
+    let shipped = std::fs::read_to_string(models.join("policy/SHIPPED")).expect("SHIPPED");
+    let shipped = format!("policy/{}", shipped.trim());
     for name in [
         "fixtures/cnn",
         "fixtures/hcnn",
         "fixtures/rcnn",
         "policy/cnn-modal",
-        "policy/dagger",
+        shipped.as_str(),
     ] {
         let manifest = models.join(name).join("policy.toml");
-        if !manifest.is_file() {
-            continue; // a shipped model that a checkout may not have
+        assert!(manifest.is_file(), "{} is missing", manifest.display());
+        for isa in Isa::available() {
+            let options = EngineOptions {
+                engine: Engine::Compiled,
+                isa: Some(isa),
+            };
+            let (policy, loaded) = OnnxPolicy::load_with(&manifest, options).expect("loads");
+            let engine = policy.engine().to_string();
+            assert!(
+                engine.starts_with(&format!("compiled ({isa}")),
+                "{name}: {engine}"
+            );
+            // The controller polls the policy files about once a second (every 100 ticks
+            // at the default 10 ms): the poll runs inside the counted ticks.
+            let mut watches: Vec<PolicyFileWatch> = std::iter::once(manifest.clone())
+                .chain(loaded.network_paths())
+                .filter_map(|path| PolicyFileWatch::new(&path))
+                .collect();
+            assert!(watches.len() >= 2, "{name}: manifest and networks watched");
+            let mut polls = 0u32;
+            let ((allocations, bytes), control) = unreliable_ticks(policy, 1_500, |tick| {
+                if tick % 100 == 0 {
+                    polls += 1;
+                    for watch in &mut watches {
+                        assert!(!watch.changed(), "a policy file changed during the test");
+                    }
+                }
+            });
+            let counters = *control.counters();
+            println!(
+                "{name} ({engine}): {allocations} allocations ({bytes} bytes) in 1,500 ticks, {} of them computing, {polls} file checks",
+                counters.new_commands
+            );
+            assert!(counters.new_commands > 200, "{counters:?}");
+            assert!(polls >= 15);
+            assert_eq!(counters.policy_failures, 0);
+            assert_eq!(
+                allocations, 0,
+                "{name}, {isa}: the tick allocated {bytes} bytes"
+            );
         }
-        let options = EngineOptions {
-            engine: Engine::Compiled,
-            isa: None,
-        };
-        let (policy, _) = OnnxPolicy::load_with(&manifest, options).expect("loads");
-        let engine = policy.engine().to_string();
-        assert!(engine.starts_with("compiled"), "{name}: {engine}");
-        let ((allocations, bytes), control) = unreliable_ticks(policy, 1_500);
-        let counters = *control.counters();
-        println!(
-            "{name} ({engine}): {allocations} allocations ({bytes} bytes) in 1,500 ticks, {} of them computing",
-            counters.new_commands
-        );
-        assert!(counters.new_commands > 200, "{counters:?}");
-        assert_eq!(counters.policy_failures, 0);
-        assert_eq!(allocations, 0, "{name}: the tick allocated {bytes} bytes");
     }
 }
 

@@ -13,7 +13,7 @@ use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
 use dribble_controller::policy::{Engine, EngineOptions};
 use dribble_controller::realtime::{self, RealtimeRequest};
-use dribble_controller::test_pattern::TestPattern;
+use dribble_controller::test_pattern::{PatternCameras, TestPattern};
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::tick_stats::TickStats;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts};
@@ -422,32 +422,22 @@ fn dry_run(
     let duration = Duration::try_from_secs_f64(seconds)
         .with_context(|| format!("--seconds must be a non-negative duration, got {seconds}"))?;
     realtime.apply()?;
-    let camera_period = SyncConfig::default().camera_period;
-    let pattern = TestPattern::default();
-    let mut top = TopFrame::new_boxed();
-    let mut bottom = BottomFrame::new_boxed();
     let mut control = ControlLoop::new(config, policy, MonotonicClock);
     let start = control.clock().now();
     let end = start + duration;
-    // The bottom camera fires half a period after the top one.
-    let mut next_top = (0u64, start);
-    let mut next_bottom = (0u64, start + camera_period / 2);
+    let mut cameras = PatternCameras::new(
+        TestPattern::default(),
+        SyncConfig::default().camera_period,
+        start,
+    );
     while control.clock().now() < end {
-        let now = control.clock().now();
-        let mut input = CameraInput::default();
-        if now >= next_top.1 {
-            pattern.paint(&mut top, next_top.0, next_top.1);
-            input.top = Some(&top);
-            next_top = (next_top.0 + 1, next_top.1 + camera_period);
-        }
-        if now >= next_bottom.1 {
-            let (sequence, time) = next_bottom;
-            next_bottom = (sequence + 1, time + camera_period);
-            if drop_bottom_every == 0 || (sequence + 1) % drop_bottom_every != 0 {
-                pattern.paint(&mut bottom, sequence, time);
-                input.bottom = Some(&bottom);
-            }
-        }
+        let due = cameras.poll(control.clock().now());
+        let bottom_sequence = cameras.bottom().header().sequence;
+        let dropped = drop_bottom_every != 0 && (bottom_sequence + 1) % drop_bottom_every == 0;
+        let input = CameraInput {
+            top: due.top.then(|| cameras.top()),
+            bottom: (due.bottom && !dropped).then(|| cameras.bottom()),
+        };
         control.tick(input);
         control.wait_for_next_tick();
     }

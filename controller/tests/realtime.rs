@@ -159,3 +159,91 @@ fn without_privileges_each_refusal_is_a_warning_and_require_realtime_refuses_to_
     );
     std::fs::remove_dir_all(binary.parent().expect("dir")).expect("clean up");
 }
+
+/// `VmLck` of this process, KiB, from `/proc/self/status`.
+fn locked_kib() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").expect("/proc/self/status");
+    status
+        .lines()
+        .find_map(|line| line.strip_prefix("VmLck:"))
+        .and_then(|value| value.split_whitespace().next())
+        .and_then(|kib| kib.parse().ok())
+        .expect("VmLck in /proc/self/status")
+}
+
+/// The calling thread's scheduling policy and priority, as the kernel has them.
+fn scheduler() -> (i32, i32) {
+    // SAFETY: both calls take the calling thread (0) and a parameter block they fill.
+    #[allow(unsafe_code)]
+    unsafe {
+        let mut parameter: libc::sched_param = std::mem::zeroed();
+        let policy = libc::sched_getscheduler(0);
+        assert_eq!(libc::sched_getparam(0, &mut parameter), 0, "sched_getparam");
+        (policy, parameter.sched_priority)
+    }
+}
+
+/// The CPUs the calling thread may run on, as the kernel has them.
+fn affinity() -> Vec<usize> {
+    // SAFETY: the set is a plain bit mask the call fills; CPU_ISSET reads within its size.
+    #[allow(unsafe_code)]
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        assert_eq!(
+            libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set),
+            0,
+            "sched_getaffinity"
+        );
+        (0..libc::CPU_SETSIZE as usize)
+            .filter(|&cpu| libc::CPU_ISSET(cpu, &set))
+            .collect()
+    }
+}
+
+#[test]
+fn what_the_report_calls_in_force_is_what_the_kernel_reads_back() {
+    use dribble_controller::realtime::{self, RealtimeRequest, Setting};
+    // A thread of its own: the priority and the pinning are the calling thread's and end
+    // with it; the memory lock is the process's and is undone at the end.
+    let (report, locked, sched, cpus, unlocked) = std::thread::spawn(|| {
+        let report = realtime::apply(RealtimeRequest {
+            lock_memory: true,
+            fifo_priority: Some(10),
+            cpu: Some(0),
+        });
+        let read = (locked_kib(), scheduler(), affinity());
+        // SAFETY: munlockall takes no arguments.
+        #[allow(unsafe_code)]
+        let unlocked = unsafe { libc::munlockall() } == 0;
+        (report, read.0, read.1, read.2, unlocked)
+    })
+    .join()
+    .expect("the settings thread");
+    assert!(unlocked, "munlockall");
+    println!(
+        "in force: {}; refused: {:?}; VmLck {locked} KiB, scheduler {sched:?}, CPUs {cpus:?}",
+        report.in_force_text(),
+        report.refused
+    );
+    let in_force = |setting| report.in_force.contains(&setting);
+    // Each setting is reported in force exactly when the kernel has it.
+    assert_eq!(
+        in_force(Setting::LockMemory),
+        locked > 0,
+        "VmLck {locked} KiB"
+    );
+    assert_eq!(
+        in_force(Setting::Fifo(10)),
+        sched == (libc::SCHED_FIFO, 10),
+        "{sched:?}"
+    );
+    assert_eq!(in_force(Setting::Cpu(0)), cpus == [0], "{cpus:?}");
+    assert_eq!(report.in_force.len() + report.refused.len(), 3);
+    // Pinning needs no privilege; as root (here and in CI) nothing may be refused.
+    assert!(in_force(Setting::Cpu(0)), "{:?}", report.refused);
+    // SAFETY: geteuid takes no arguments.
+    #[allow(unsafe_code)]
+    if unsafe { libc::geteuid() } == 0 {
+        assert!(report.refused.is_empty(), "{:?}", report.refused);
+    }
+}

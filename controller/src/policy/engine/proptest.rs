@@ -277,9 +277,15 @@ fn a_dense_layer_of_no_inputs_is_refused_not_a_panic() {
 
 // Random small graphs of each operator family.
 
+/// 48 graphs a property natively; `PROPTEST_CASES` overrides it (`cross/test` asks for
+/// fewer: under the emulated Atoms every case costs tract's optimisation at emulated speed,
+/// and the host has already run the full count on the same code).
 fn isa_cases() -> ProptestConfig {
     ProptestConfig {
-        cases: 48,
+        cases: std::env::var("PROPTEST_CASES")
+            .ok()
+            .and_then(|cases| cases.parse().ok())
+            .unwrap_or(48),
         failure_persistence: None,
         ..ProptestConfig::default()
     }
