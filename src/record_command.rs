@@ -14,7 +14,9 @@ use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::render::Renderer;
-use dribble_sim::runner::{Driver, EpisodeConfig, ExpertLabels, run_episode_observed};
+use dribble_sim::runner::{
+    Driver, EpisodeConfig, EpisodeResult, ExpertLabels, run_episode_observed,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
@@ -71,63 +73,10 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         ..EpisodeConfig::default()
     };
     let expert_config = ExpertConfig::default();
-    let simulator = serde_json::json!({
-        "world": format!("{:?}", config.world),
-        "walk": format!("{:?}", config.walk),
-        "cameras": serde_json::to_value(config.cameras)?,
-        "control": format!("{:?}", config.control),
-        "time_limit_s": config.time_limit_s,
-    });
-    let expert = serde_json::json!(format!("{expert_config:?}"));
     let policy = policy_driver(args)?;
-    let driver = policy.as_ref().map(|(path, manifest)| {
-        serde_json::json!({
-            "policy": path.display().to_string(),
-            "kind": manifest.kind.to_string(),
-            "trained_on": manifest.training.dataset,
-            "dataset_hash": manifest.training.dataset_hash,
-            "label_with": "expert",
-            "beta": args.beta,
-            "mixing": "per computed command, the expert's command is executed with probability \
-                       beta (held until the next computed command); draws seeded by the episode",
-        })
-    });
-    let mut index = match DatasetIndex::load(&args.out)? {
-        Some(index) => {
-            // Resuming: the new episodes must come from the same simulator and expert.
-            let mut differences = Vec::new();
-            let recorded_teacher = index.teacher.as_deref().unwrap_or("paper");
-            if recorded_teacher != args.expert.name() {
-                differences.push(format!(
-                    "teacher: {recorded_teacher} there, {} now",
-                    args.expert
-                ));
-            }
-            config_differences("", &index.simulator, &simulator, &mut differences);
-            config_differences("expert", &index.expert, &expert, &mut differences);
-            let recorded_driver = index.driver.clone().unwrap_or_default();
-            let driver_now = driver.clone().unwrap_or_default();
-            config_differences("driver", &recorded_driver, &driver_now, &mut differences);
-            ensure!(
-                differences.is_empty(),
-                "{} was recorded with another simulator, camera or expert configuration \
-                 ({}); record into a new directory",
-                args.out.display(),
-                differences.join("; ")
-            );
-            index
-        }
-        None => DatasetIndex {
-            format: 1,
-            project_version: env!("CARGO_PKG_VERSION").into(),
-            simulator,
-            expert,
-            episodes: Vec::new(),
-            content_hash: None,
-            driver,
-            teacher: Some(args.expert.name().into()),
-        },
-    };
+    let (simulator, expert, driver) =
+        configuration(args, &config, &expert_config, policy.as_ref())?;
+    let mut index = open_index(args, simulator, expert, driver)?;
     let done = |seed: u64| {
         index
             .episodes
@@ -217,18 +166,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
                 args.controller.controller_log.display()
             );
         }
-        let file = episode_file(seed);
-        let (bytes, sha256) = recording.write(&args.out.join(&file))?;
-        index.insert(EpisodeEntry {
-            seed,
-            file,
-            outcome: result.outcome,
-            rows: recording.rows(),
-            duration_s: f64::from(result.duration_s),
-            bytes,
-            sha256: Some(sha256),
-        });
-        index.save(&args.out)?;
+        let bytes = keep_episode(args, &mut index, seed, &result, &recording)?;
         simulated += f64::from(result.duration_s);
         bytes_written += bytes;
         let executed = if policy.is_some() {
@@ -266,13 +204,127 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             bytes_written as f64 / 1e6
         );
     }
+    report_dataset(args, &mut index, !todo.is_empty())
+}
+
+/// What the dataset records of how it was made: the simulator, the expert and the driver
+/// (a resumed recording must match all three).
+fn configuration(
+    args: &RecordArgs,
+    config: &EpisodeConfig,
+    expert_config: &ExpertConfig,
+    policy: Option<&(PathBuf, PolicyManifest)>,
+) -> anyhow::Result<(
+    serde_json::Value,
+    serde_json::Value,
+    Option<serde_json::Value>,
+)> {
+    let simulator = serde_json::json!({
+        "world": format!("{:?}", config.world),
+        "walk": format!("{:?}", config.walk),
+        "cameras": serde_json::to_value(config.cameras)?,
+        "control": format!("{:?}", config.control),
+        "time_limit_s": config.time_limit_s,
+    });
+    let expert = serde_json::json!(format!("{expert_config:?}"));
+    let driver = policy.map(|(path, manifest)| {
+        serde_json::json!({
+            "policy": path.display().to_string(),
+            "kind": manifest.kind.to_string(),
+            "trained_on": manifest.training.dataset,
+            "dataset_hash": manifest.training.dataset_hash,
+            "label_with": "expert",
+            "beta": args.beta,
+            "mixing": "per computed command, the expert's command is executed with probability \
+                       beta (held until the next computed command); draws seeded by the episode",
+        })
+    });
+    Ok((simulator, expert, driver))
+}
+
+/// Writes the episode's file and lists it in the index (saved at once, so that an
+/// interrupted recording keeps it); returns the file's size.
+fn keep_episode(
+    args: &RecordArgs,
+    index: &mut DatasetIndex,
+    seed: u64,
+    result: &EpisodeResult,
+    recording: &EpisodeRecording,
+) -> anyhow::Result<u64> {
+    let file = episode_file(seed);
+    let (bytes, sha256) = recording.write(&args.out.join(&file))?;
+    index.insert(EpisodeEntry {
+        seed,
+        file,
+        outcome: result.outcome,
+        rows: recording.rows(),
+        duration_s: f64::from(result.duration_s),
+        bytes,
+        sha256: Some(sha256),
+    });
+    index.save(&args.out)?;
+    Ok(bytes)
+}
+
+/// The dataset's index: the one in `args.out` when its simulator, expert, driver and teacher
+/// are this run's (resuming), or a new one.
+fn open_index(
+    args: &RecordArgs,
+    simulator: serde_json::Value,
+    expert: serde_json::Value,
+    driver: Option<serde_json::Value>,
+) -> anyhow::Result<DatasetIndex> {
+    Ok(match DatasetIndex::load(&args.out)? {
+        Some(index) => {
+            // Resuming: the new episodes must come from the same simulator and expert.
+            let mut differences = Vec::new();
+            let recorded_teacher = index.teacher.as_deref().unwrap_or("paper");
+            if recorded_teacher != args.expert.name() {
+                differences.push(format!(
+                    "teacher: {recorded_teacher} there, {} now",
+                    args.expert
+                ));
+            }
+            config_differences("", &index.simulator, &simulator, &mut differences);
+            config_differences("expert", &index.expert, &expert, &mut differences);
+            let recorded_driver = index.driver.clone().unwrap_or_default();
+            let driver_now = driver.clone().unwrap_or_default();
+            config_differences("driver", &recorded_driver, &driver_now, &mut differences);
+            ensure!(
+                differences.is_empty(),
+                "{} was recorded with another simulator, camera or expert configuration \
+                 ({}); record into a new directory",
+                args.out.display(),
+                differences.join("; ")
+            );
+            index
+        }
+        None => DatasetIndex {
+            format: 1,
+            project_version: env!("CARGO_PKG_VERSION").into(),
+            simulator,
+            expert,
+            episodes: Vec::new(),
+            content_hash: None,
+            driver,
+            teacher: Some(args.expert.name().into()),
+        },
+    })
+}
+
+/// Saves the index if this run changed it and prints what the dataset holds.
+fn report_dataset(
+    args: &RecordArgs,
+    index: &mut DatasetIndex,
+    recorded: bool,
+) -> anyhow::Result<()> {
     let goals = index
         .episodes
         .iter()
         .filter(|e| e.outcome == dribble_sim::dataset::Outcome::Goal)
         .count();
     // Saved only when something changed, so that a finished dataset's index keeps its time.
-    if !todo.is_empty() || index.content_hash != index.compute_content_hash() {
+    if recorded || index.content_hash != index.compute_content_hash() {
         index.save(&args.out)?;
     }
     println!(

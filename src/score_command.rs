@@ -111,57 +111,13 @@ pub fn run(args: &ScoreArgs) -> anyhow::Result<()> {
     let (mut top, mut bottom) = (TopThumbnail::black(), BottomThumbnail::black());
     for entry in &index.episodes {
         let path = args.dataset.join(&entry.file);
-        let arrays = read_npz(&path)?;
-        let array = |name: &str| {
-            arrays
-                .get(name)
-                .with_context(|| format!("{} has no {name} array", path.display()))
-        };
-        let (tops, bottoms) = (&array("top")?.data, &array("bottom")?.data);
-        let commands = array("command")?.as_f32();
-        let phase = &array("phase")?.data;
-        let rows = phase.len();
-        ensure!(
-            tops.len() == rows * top.as_bytes().len()
-                && bottoms.len() == rows * bottom.as_bytes().len()
-                && commands.len() == rows * 3,
-            "{}: the arrays disagree on the number of rows ({rows} phases)",
-            path.display()
-        );
-        policy.reset();
-        let mut episode = ErrorSum::default();
-        for row in 0..rows {
-            top.as_bytes_mut()
-                .copy_from_slice(&tops[row * 19_200..(row + 1) * 19_200]);
-            bottom
-                .as_bytes_mut()
-                .copy_from_slice(&bottoms[row * 4_800..(row + 1) * 4_800]);
-            let step_started = Instant::now();
-            let answer = policy.step(PolicyInput {
-                top: &top,
-                bottom: &bottom,
-            });
-            step_ms.push(step_started.elapsed().as_secs_f64() * 1e3);
-            let sent = match answer {
-                Ok(out) => {
-                    SpeedCommand::new(out.forward, out.left, out.turn).unwrap_or(SpeedCommand::STOP)
-                }
-                Err(_) => SpeedCommand::STOP,
-            };
-            let expert = &commands[row * 3..row * 3 + 3];
-            let error = sent
-                .as_array()
-                .iter()
-                .zip(expert)
-                .map(|(a, b)| f64::from(a - b).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            overall.add(error);
-            episode.add(error);
-            if let Some(sum) = phases.get_mut(usize::from(phase[row])) {
-                sum.add(error);
-            }
-        }
+        let (episode, rows) = score_episode(
+            &mut policy,
+            &path,
+            (&mut top, &mut bottom),
+            (&mut overall, &mut phases),
+            &mut step_ms,
+        )?;
         episodes.push((entry.seed, episode));
         progress.inc(rows as u64);
     }
@@ -203,6 +159,70 @@ pub fn run(args: &ScoreArgs) -> anyhow::Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
+}
+
+/// Runs `policy` over one episode's rows from its first (state reset), adding each row's
+/// error to `overall` and its phase's sum and each step's time to `step_ms`; the episode's
+/// own sum and its rows.
+fn score_episode(
+    policy: &mut OnnxPolicy,
+    path: &std::path::Path,
+    (top, bottom): (&mut TopThumbnail, &mut BottomThumbnail),
+    (overall, phases): (&mut ErrorSum, &mut [ErrorSum; 4]),
+    step_ms: &mut Vec<f64>,
+) -> anyhow::Result<(ErrorSum, usize)> {
+    let arrays = read_npz(path)?;
+    let array = |name: &str| {
+        arrays
+            .get(name)
+            .with_context(|| format!("{} has no {name} array", path.display()))
+    };
+    let (tops, bottoms) = (&array("top")?.data, &array("bottom")?.data);
+    let commands = array("command")?.as_f32();
+    let phase = &array("phase")?.data;
+    let rows = phase.len();
+    ensure!(
+        tops.len() == rows * top.as_bytes().len()
+            && bottoms.len() == rows * bottom.as_bytes().len()
+            && commands.len() == rows * 3,
+        "{}: the arrays disagree on the number of rows ({rows} phases)",
+        path.display()
+    );
+    policy.reset();
+    let mut episode = ErrorSum::default();
+    for row in 0..rows {
+        top.as_bytes_mut()
+            .copy_from_slice(&tops[row * 19_200..(row + 1) * 19_200]);
+        bottom
+            .as_bytes_mut()
+            .copy_from_slice(&bottoms[row * 4_800..(row + 1) * 4_800]);
+        let step_started = Instant::now();
+        let answer = policy.step(PolicyInput {
+            top: &*top,
+            bottom: &*bottom,
+        });
+        step_ms.push(step_started.elapsed().as_secs_f64() * 1e3);
+        let sent = match answer {
+            Ok(out) => {
+                SpeedCommand::new(out.forward, out.left, out.turn).unwrap_or(SpeedCommand::STOP)
+            }
+            Err(_) => SpeedCommand::STOP,
+        };
+        let expert = &commands[row * 3..row * 3 + 3];
+        let error = sent
+            .as_array()
+            .iter()
+            .zip(expert)
+            .map(|(a, b)| f64::from(a - b).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        overall.add(error);
+        episode.add(error);
+        if let Some(sum) = phases.get_mut(usize::from(phase[row])) {
+            sum.add(error);
+        }
+    }
+    Ok((episode, rows))
 }
 
 /// Which of the manifest's datasets has content hash `hash`.
