@@ -23,6 +23,7 @@ use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, run_episode_obse
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
+use crate::eval_jobs::{JobPlan, play};
 use crate::foxglove_episodes::FoxgloveArgs;
 use crate::trajectory_file::write_trajectories;
 use crate::trajectory_plot::{plot_trajectories, title};
@@ -53,6 +54,11 @@ pub struct EvalArgs {
     /// Time limit per episode, simulated seconds (positive and finite).
     #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
     time_limit: f32,
+    /// Play the episodes in this many processes at once, each with its own simulator,
+    /// controller and iceoryx2 domain (`<domain>-job<k>`); the table, plot and trajectories
+    /// are merged in seed order and the outcomes are a serial run's. About one job per core.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    jobs: u16,
     #[command(flatten)]
     controller: ControllerOptions,
     #[command(flatten)]
@@ -65,7 +71,61 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         ..EpisodeConfig::default()
     };
     let policy_path = (args.driver != "expert").then(|| PathBuf::from(&args.driver));
-    match &policy_path {
+    describe_driver(args, policy_path.as_deref())?;
+    let seeds = args.episodes.0.clone();
+    let played = if args.jobs > 1 && seeds.end - seeds.start > 1 {
+        anyhow::ensure!(
+            args.foxglove.live.is_none(),
+            "--live serves one run: leave out --jobs"
+        );
+        let arguments: Vec<String> = std::env::args()
+            .skip_while(|argument| argument != "eval")
+            .skip(1)
+            .collect();
+        let domain = args
+            .controller
+            .domain
+            .clone()
+            .or_else(|| std::env::var("DRIBBLE_DOMAIN").ok())
+            .unwrap_or_else(|| format!("dribble-eval-{}", std::process::id()));
+        let scratch =
+            std::env::temp_dir().join(format!("dribble-eval-jobs-{}", std::process::id()));
+        let plan = JobPlan {
+            seeds,
+            jobs: usize::from(args.jobs),
+            arguments: &arguments,
+            domain,
+            controller_log: &args.controller.controller_log,
+            scratch: scratch.clone(),
+        };
+        let (results, engine) = play(&plan)?;
+        let _ = std::fs::remove_dir_all(&scratch);
+        println!();
+        print_header();
+        for result in &results {
+            print_row(result);
+        }
+        Played {
+            results,
+            engine,
+            latency: None,
+        }
+    } else {
+        play_here(args, &config, policy_path.as_deref())?
+    };
+    report(args, policy_path.is_some(), &played)
+}
+
+/// What a run played: every episode, the engine that ran the policy, the controller's latency.
+struct Played {
+    results: Vec<EpisodeResult>,
+    engine: Option<String>,
+    /// Not known for a run in jobs (each child prints its own).
+    latency: Option<TickStats>,
+}
+
+fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> anyhow::Result<()> {
+    match policy_path {
         None => match args.expert {
             Teacher::Paper => println!("driver: the paper's expert (ground truth)"),
             Teacher::Observable => println!(
@@ -87,6 +147,36 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             );
         }
     }
+    Ok(())
+}
+
+fn print_header() {
+    println!(
+        "{:>6}  {:<15}  {:>9}  {:>9}  {:>8}",
+        "seed", "outcome", "time (s)", "walked (m)", "commands"
+    );
+}
+
+fn print_row(result: &EpisodeResult) {
+    println!(
+        "{:>6}  {:<15}  {:>9.1}  {:>9.2}  {:>8}",
+        result.setup.seed,
+        result.outcome.name(),
+        result.duration_s,
+        result.distance_walked_m,
+        result.computed_commands
+    );
+    if let Some(failure) = &result.failure {
+        println!("        {failure}");
+    }
+}
+
+/// Plays every episode in this process, one after the other.
+fn play_here(
+    args: &EvalArgs,
+    config: &EpisodeConfig,
+    policy_path: Option<&std::path::Path>,
+) -> anyhow::Result<Played> {
     let mut renderer = if policy_path.is_some() || args.render {
         let renderer = Renderer::new(
             &FieldGeometry::SPL,
@@ -99,10 +189,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         None
     };
     println!();
-    println!(
-        "{:>6}  {:<15}  {:>9}  {:>9}  {:>8}",
-        "seed", "outcome", "time (s)", "walked (m)", "commands"
-    );
+    print_header();
     let mut results: Vec<EpisodeResult> = Vec::new();
     let mut latency = TickStats::new(config.control.budget);
     let mut session: Option<ControllerSession> = None;
@@ -118,7 +205,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             Some(foxglove) => foxglove,
             None => &mut no_observer,
         };
-        let result = match &policy_path {
+        let result = match policy_path {
             None => {
                 let expert = Expert::teaching(
                     args.expert,
@@ -128,7 +215,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 );
                 run_episode_observed(
                     &setup,
-                    &config,
+                    config,
                     Driver::Expert(expert),
                     renderer.as_mut(),
                     None,
@@ -143,23 +230,15 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 }
                 let link = session.as_mut().map(ControllerSession::link);
                 let driver = Driver::Controller(link.context("no controller session")?);
-                run_episode_observed(&setup, &config, driver, renderer.as_mut(), None, observer)
+                run_episode_observed(&setup, config, driver, renderer.as_mut(), None, observer)
             }
         }
         .with_context(|| format!("episode {seed}"))?;
         if let Some(failure) = foxglove.as_mut().and_then(|f| f.take_failure()) {
             return Err(failure.context(format!("episode {seed}: writing it for Foxglove")));
         }
-        println!(
-            "{:>6}  {:<15}  {:>9.1}  {:>9.2}  {:>8}",
-            seed,
-            result.outcome.name(),
-            result.duration_s,
-            result.distance_walked_m,
-            result.computed_commands
-        );
-        if let Some(failure) = &result.failure {
-            println!("        {failure}");
+        print_row(&result);
+        if result.failure.is_some() {
             // A new controller for the next episode (a running one we did not start is
             // looked for again).
             session = None;
@@ -170,6 +249,23 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     if let Some(session) = session.take() {
         session.finish(&args.controller);
     }
+    if let (Some(foxglove), Some(dir)) = (&foxglove, &args.foxglove.mcap) {
+        println!(
+            "mcap: {} episode file(s) in {} (open in Foxglove with sim-harness/foxglove-layout.json)",
+            foxglove.written().len(),
+            dir.display()
+        );
+    }
+    Ok(Played {
+        results,
+        engine,
+        latency: Some(latency),
+    })
+}
+
+/// Goals with their interval, the time to goal, the latency, the plot and the file.
+fn report(args: &EvalArgs, policy: bool, played: &Played) -> anyhow::Result<()> {
+    let results = &played.results;
     let goals: Vec<f32> = results
         .iter()
         .filter(|r| r.outcome == Outcome::Goal)
@@ -180,7 +276,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         .filter(|r| r.outcome == Outcome::ControllerLost)
         .count();
     println!();
-    if let Some(engine) = &engine {
+    if let Some(engine) = &played.engine {
         println!("engine: {engine}");
     }
     let (low, high) = crate::goal_rate::wilson_interval(goals.len(), results.len());
@@ -195,24 +291,22 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     if let Some(median) = median(&goals) {
         println!("median time to goal: {median:.1} s");
     }
-    if let Some(summary) = latency.summary() {
-        let what = match &policy_path {
-            None => "controller tick latency (computing ticks, this machine)",
-            Some(_) => args.controller.latency_label(),
-        };
-        println!("{what}: {summary}");
+    let what = if policy {
+        args.controller.latency_label()
+    } else {
+        "controller tick latency (computing ticks, this machine)"
+    };
+    match played.latency.as_ref().and_then(TickStats::summary) {
+        Some(summary) => println!("{what}: {summary}"),
+        None if args.jobs > 1 && policy => {
+            println!("{what}: in each job's output (not merged across --jobs)")
+        }
+        None => {}
     }
-    plot_trajectories(&results, &title(&args.driver, &results), &args.plot)?;
+    plot_trajectories(results, &title(&args.driver, results), &args.plot)?;
     println!("trajectory plot: {}", args.plot.display());
-    if let (Some(foxglove), Some(dir)) = (&foxglove, &args.foxglove.mcap) {
-        println!(
-            "mcap: {} episode file(s) in {} (open in Foxglove with sim-harness/foxglove-layout.json)",
-            foxglove.written().len(),
-            dir.display()
-        );
-    }
     if let Some(path) = &args.trajectories {
-        write_trajectories(&results, engine.as_deref(), path)?;
+        write_trajectories(results, played.engine.as_deref(), path)?;
         println!("trajectories: {}", path.display());
     }
     Ok(())

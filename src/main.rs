@@ -4,6 +4,7 @@
 mod controller_session;
 mod episodes;
 mod eval_command;
+mod eval_jobs;
 mod foxglove_episodes;
 mod goal_rate;
 mod inspect_command;

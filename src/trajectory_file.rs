@@ -3,7 +3,7 @@
 //! or a controller the run joined). Written by `eval`, read back by `dribble plot`; one
 //! definition for both, so that they cannot drift apart. (Fields in alphabetical order and
 //! the simulator's `f32`s widened to `f64`: the files come out byte for byte as they did when
-//! `serde_json::json!` wrote them.)
+//! `serde_json::json!` wrote them, with `first_sighting_s`, `heading` and `walked_m` added since.)
 
 use std::path::Path;
 
@@ -21,9 +21,18 @@ struct RecordedEpisode {
     computed_commands: u64,
     duration_s: f64,
     failure: Option<String>,
+    /// When the ball was first inside either image, s (absent: never, or an older file).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    first_sighting_s: Option<f64>,
+    /// The robot's heading at each `robot` point, radians (absent in older files).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    heading: Vec<f64>,
     outcome: Outcome,
     robot: Vec<[f64; 2]>,
     seed: u64,
+    /// Absent in files written before it was kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    walked_m: Option<f64>,
 }
 
 #[derive(Debug, Deserialize, Serialize)]
@@ -48,9 +57,12 @@ pub fn write_trajectories(
                 computed_commands: r.computed_commands,
                 duration_s: r.duration_s.into(),
                 failure: r.failure.clone(),
+                first_sighting_s: r.first_sighting_s.map(f64::from),
+                heading: r.heading_path.iter().map(|&h| h.into()).collect(),
                 outcome: r.outcome,
                 robot: points(&r.robot_path),
                 seed: r.setup.seed,
+                walked_m: Some(r.distance_walked_m.into()),
             })
             .collect(),
     };
@@ -71,7 +83,17 @@ pub fn read_trajectories(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
     })
 }
 
-/// What the file does not keep, the distance walked and the tick times, is left empty.
+/// The engine a trajectories file names (`None`: the expert, or a controller the run joined).
+pub fn read_trajectories_engine(path: &Path) -> anyhow::Result<Option<String>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let recorded: RecordedEvaluation = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a trajectories file", path.display()))?;
+    Ok(recorded.engine)
+}
+
+/// What the file does not keep, the tick times (and the distance walked in older files),
+/// is left empty.
 fn parse_trajectories(text: &str) -> anyhow::Result<Vec<EpisodeResult>> {
     let recorded: RecordedEvaluation = serde_json::from_str(text)?;
     if recorded.episodes.is_empty() {
@@ -90,9 +112,11 @@ fn parse_trajectories(text: &str) -> anyhow::Result<Vec<EpisodeResult>> {
             setup: EpisodeSetup::from_seed(episode.seed),
             outcome: episode.outcome,
             duration_s: episode.duration_s as f32,
-            distance_walked_m: 0.0,
+            distance_walked_m: episode.walked_m.unwrap_or(0.0) as f32,
             robot_path: points(&episode.robot),
             ball_path: points(&episode.ball),
+            heading_path: episode.heading.iter().map(|&h| h as f32).collect(),
+            first_sighting_s: episode.first_sighting_s.map(|s| s as f32),
             computed_commands: episode.computed_commands,
             tick_times: TickStats::new(std::time::Duration::from_millis(10)),
             failure: episode.failure,
@@ -139,6 +163,7 @@ mod tests {
         )
         .expect("parses");
         results[0].robot_path = vec![Vec2::new(0.1, -2.6696692)];
+        results[0].distance_walked_m = 1.25;
         write_trajectories(&results, Some("compiled (avx2+fma)"), &path).expect("written");
         let text = std::fs::read_to_string(&path).expect("read");
         assert_eq!(
@@ -146,11 +171,13 @@ mod tests {
             serde_json::json!({"engine": "compiled (avx2+fma)", "episodes": [{
                 "seed": 7u64, "outcome": Outcome::BallOut, "duration_s": 3.0f32,
                 "computed_commands": 90u64, "failure": null,
-                "robot": [[0.1f32, -2.6696692f32]], "ball": [[1.0f32, 2.0f32]]}]})
+                "robot": [[0.1f32, -2.6696692f32]], "ball": [[1.0f32, 2.0f32]],
+                "walked_m": 1.25f32}]})
             .to_string()
         );
         let back = read_trajectories(&path).expect("reads");
         assert_eq!(back[0].robot_path, results[0].robot_path);
+        assert_eq!(back[0].distance_walked_m, 1.25);
         let _ = std::fs::remove_file(&path);
     }
 

@@ -319,3 +319,58 @@ fn truncate_npz_member(path: &Path, member: &str, by: usize) {
     let bytes = writer.finish().expect("finish").into_inner();
     fs::write(path, bytes).expect("write back");
 }
+
+#[test]
+fn episodes_in_parallel_jobs_end_as_in_one_serial_run() {
+    let policy = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy/dagger/policy.toml");
+    let run = |name: &str, jobs: &str| {
+        let out = scratch(name);
+        fs::create_dir_all(&out).expect("scratch");
+        let trajectories = out.join("trajectories.json");
+        let output = dribble(&[
+            "eval",
+            "--driver",
+            path(&policy),
+            "--episodes",
+            "20000..20004",
+            "--time-limit",
+            "4",
+            "--isa",
+            "portable",
+            "--jobs",
+            jobs,
+            "--domain",
+            &format!("dribble-jobs-test-{name}-{}", std::process::id()),
+            "--plot",
+            path(&out.join("plot.png")),
+            "--trajectories",
+            path(&trajectories),
+            "--controller-log",
+            path(&out.join("controller.log")),
+        ]);
+        let log = text(&output);
+        assert!(output.status.success(), "{log}");
+        assert!(out.join("plot.png").is_file(), "{log}");
+        let file: serde_json::Value =
+            serde_json::from_str(&fs::read_to_string(&trajectories).expect("trajectories"))
+                .expect("json");
+        fs::remove_dir_all(out).expect("clean up");
+        (log, file)
+    };
+    let (serial_log, serial) = run("serial", "1");
+    let (jobs_log, jobs) = run("jobs", "2");
+    assert!(
+        jobs_log.contains("job 1: seeds 20002..20004 done"),
+        "{jobs_log}"
+    );
+    // Every episode's outcome, duration, commands and 10 Hz paths, to the bit; the engine too.
+    assert_eq!(serial, jobs, "serial:\n{serial_log}\njobs:\n{jobs_log}");
+    let rows = |log: &str| -> Vec<String> {
+        log.lines()
+            .filter(|line| line.trim_start().starts_with("2000"))
+            .map(str::to_owned)
+            .collect()
+    };
+    assert_eq!(rows(&serial_log), rows(&jobs_log));
+    assert_eq!(rows(&serial_log).len(), 4, "{serial_log}");
+}

@@ -8,7 +8,9 @@ directory keeps and what the results table reads. Per episode: seed, outcome, du
 commands, failure (if any), metres walked, the share of the episode spent standing, the
 closest the robot came to the ball, how far the ball moved toward the target goal (the goal
 on the ball's starting side, as the episode protocol sets it) and the ball's distance to
-that goal at the end. Beside the episodes: the engine that ran the policy.
+that goal at the end, how far it turned, when it first saw the ball, and for an episode
+without a goal its failure class (FAILURE_CLASSES). Beside the episodes: the engine that
+ran the policy.
 """
 
 from __future__ import annotations
@@ -23,6 +25,45 @@ from pathlib import Path
 GOAL_X_M = 4.5
 #: Samples per second in the paths `dribble eval` writes.
 PATH_RATE_HZ = 10
+#: Within this of the ball, metres, the robot has reached it.
+REACHED_M = 0.3
+#: Getting this far from the start without reaching the ball is walking off, metres (the
+#: farthest point, not the path's length: a standing robot's sway adds up to metres of path).
+WALKED_OFF_M = 1.0
+#: Turning this far in all without walking off is turning in place, radians.
+TURNED_IN_PLACE_RAD = math.pi
+
+#: Why an episode ended without a goal, from its paths:
+FAILURE_CLASSES = {
+    "ball_out": "the ball left the field",
+    "controller_lost": "the controller died or stopped answering",
+    "lost_the_ball": "reached the ball (within 0.3 m), then no goal in time",
+    "walked_off": "never reached the ball, went 1 m or more from where it started",
+    "turned_in_place": "never reached the ball, stayed within 1 m of its start, turned half a turn or more",
+    "stood": "never reached the ball, stayed within 1 m of its start, turned less than half a turn",
+    "stood_or_turned": "never reached the ball, stayed within 1 m of its start (an older file: no heading)",
+}
+
+
+def turned_rad(heading: list[float]) -> float:
+    """How far the robot turned in all, either way (each step's change wrapped to ±pi)."""
+    return sum(abs((b - a + math.pi) % (2 * math.pi) - math.pi) for a, b in zip(heading, heading[1:]))
+
+
+def failure_class(summary: dict) -> str | None:
+    """The class of an episode without a goal (None for a goal)."""
+    outcome = summary["outcome"]
+    if outcome == "goal":
+        return None
+    if outcome in ("ball_out", "controller_lost"):
+        return outcome
+    if summary.get("closest_to_ball_m", math.inf) <= REACHED_M:
+        return "lost_the_ball"
+    if summary.get("farthest_from_start_m", 0.0) >= WALKED_OFF_M:
+        return "walked_off"
+    if summary.get("turned_rad") is None:
+        return "stood_or_turned"
+    return "turned_in_place" if summary["turned_rad"] >= TURNED_IN_PLACE_RAD else "stood"
 
 
 def summarise_episode(episode: dict) -> dict:
@@ -31,6 +72,7 @@ def summarise_episode(episode: dict) -> dict:
     if robot and ball:
         goal = (GOAL_X_M * (1.0 if ball[0][0] >= 0 else -1.0), 0.0)
         summary["walked_m"] = round(sum(math.dist(a, b) for a, b in zip(robot, robot[1:])), 3)
+        summary["farthest_from_start_m"] = round(max(math.dist(robot[0], r) for r in robot), 3)
         summary["closest_to_ball_m"] = round(min(math.dist(r, b) for r, b in zip(robot, ball)), 3)
         summary["ball_toward_goal_m"] = round(math.dist(ball[0], goal) - math.dist(ball[-1], goal), 3)
         summary["ball_to_goal_end_m"] = round(math.dist(ball[-1], goal), 3)
@@ -39,6 +81,10 @@ def summarise_episode(episode: dict) -> dict:
         seconds = range(PATH_RATE_HZ, len(robot))
         standing = sum(math.dist(robot[i][:2], robot[i - PATH_RATE_HZ][:2]) < 0.05 for i in seconds)
         summary["standing_share"] = round(standing / len(seconds), 3) if len(seconds) else 0.0
+    heading = episode.get("heading") or []
+    summary["turned_rad"] = round(turned_rad(heading), 3) if heading else None
+    summary["first_sighting_s"] = episode.get("first_sighting_s")
+    summary["failure_class"] = failure_class(summary)
     return summary
 
 

@@ -48,3 +48,24 @@ def test_files_from_before_the_engine_was_recorded_summarise_without_one(tmp_pat
     source.write_text(json.dumps({"episodes": [episode(3, "goal", [[0.0, 0.0]], [[4.5, 0.0]])]}))
     assert eval_summary.main([str(source), str(target)]) == 0
     assert json.loads(target.read_text())["engine"] is None
+
+
+def test_each_failure_has_one_class_from_its_paths():
+    far_ball = [[3.0, 0.0]] * 30
+    still = [[0.0, 0.0]] * 30
+    spinning = dict(episode(1, "time_limit", still, far_ball), heading=[0.3 * i for i in range(30)])
+    assert eval_summary.summarise_episode(spinning)["failure_class"] == "turned_in_place"
+    assert eval_summary.summarise_episode(spinning)["turned_rad"] == round(0.3 * 29, 3)
+    # Headings that wrap at ±pi are one small turn, not a full circle.
+    wobbling = dict(episode(2, "time_limit", still, far_ball), heading=[3.1, -3.1] * 15)
+    assert eval_summary.summarise_episode(wobbling)["failure_class"] == "stood"
+    walking = [[0.1 * i, 1.0] for i in range(30)]  # 2.9 m, never within 0.3 m of (3, 0)
+    assert eval_summary.summarise_episode(dict(episode(3, "time_limit", walking, far_ball), heading=[0.0] * 30))["failure_class"] == "walked_off"
+    reached = [[0.1 * i, 0.0] for i in range(30)]  # ends 0.1 m from the ball
+    assert eval_summary.summarise_episode(episode(4, "time_limit", reached, far_ball))["failure_class"] == "lost_the_ball"
+    assert eval_summary.summarise_episode(episode(5, "ball_out", still, far_ball))["failure_class"] == "ball_out"
+    assert eval_summary.summarise_episode(episode(6, "goal", reached, far_ball))["failure_class"] is None
+    # Files without headings cannot tell standing from turning.
+    assert eval_summary.summarise_episode(episode(7, "time_limit", still, far_ball))["failure_class"] == "stood_or_turned"
+    seen = dict(episode(8, "goal", reached, far_ball), first_sighting_s=2.4)
+    assert eval_summary.summarise_episode(seen)["first_sighting_s"] == 2.4

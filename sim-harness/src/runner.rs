@@ -34,6 +34,7 @@ use crate::episode_observer::{EpisodeObserver, NoObserver};
 use crate::expert::{Expert, GroundTruth, Phase};
 use crate::render::{RenderError, Renderer};
 use crate::simulation::{STEPS_PER_MOTION_CYCLE, Simulation};
+use crate::visibility::Visibility;
 use crate::walk::WalkConfig;
 use crate::world::{STEPS_PER_SECOND, WorldConfig};
 
@@ -70,6 +71,11 @@ pub struct EpisodeResult {
     /// Robot and ball positions, ten times a second.
     pub robot_path: Vec<Vec2>,
     pub ball_path: Vec<Vec2>,
+    /// The robot's heading (radians, field frame) at the same instants as `robot_path`.
+    pub heading_path: Vec<f32>,
+    /// When the ball's centre was first inside either camera's image (checked ten times a
+    /// second, from the poses alone); `None` if it never was.
+    pub first_sighting_s: Option<f32>,
     /// Commands computed from new camera pairs.
     pub computed_commands: u64,
     /// Wall-clock time of each controller tick that computed a command; for a linked
@@ -255,7 +261,7 @@ pub fn run_episode_observed(
     let (mut top_new, mut bottom_new) = (false, false);
     let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
     let mut tick_times = TickStats::new(config.control.budget);
-    let mut trace = Trace::new(setup);
+    let mut trace = Trace::new(setup, config.cameras);
     let outcome = loop {
         if let Some(camera) = simulation.step() {
             take_frame(
@@ -394,21 +400,46 @@ struct Ending {
     expert_executed: u64,
 }
 
-/// The robot's and the ball's paths and the distance walked, step by step.
+/// The robot's and the ball's paths, the heading, the distance walked and the first sighting
+/// of the ball, step by step.
 struct Trace {
     robot_path: Vec<Vec2>,
     ball_path: Vec<Vec2>,
+    heading_path: Vec<f32>,
+    first_sighting_s: Option<f32>,
+    cameras: CameraGeometry,
+    target_side: f32,
     distance: f32,
     last_position: Vec2,
 }
 
 impl Trace {
-    fn new(setup: &EpisodeSetup) -> Self {
+    fn new(setup: &EpisodeSetup, cameras: CameraGeometry) -> Self {
         Self {
             robot_path: Vec::new(),
             ball_path: Vec::new(),
+            heading_path: Vec::new(),
+            first_sighting_s: None,
+            cameras,
+            target_side: setup.target_side,
             distance: 0.0,
             last_position: Vec2::new(setup.robot.x, setup.robot.y),
+        }
+    }
+
+    /// Samples the paths at this instant (and looks for the ball until it is first seen).
+    fn sample(&mut self, simulation: &Simulation) {
+        let world = simulation.world();
+        let pose = world.robot_pose();
+        let ball = world.ball().position.truncate();
+        self.robot_path.push(Vec2::new(pose.x, pose.y));
+        self.ball_path.push(ball);
+        self.heading_path.push(pose.theta);
+        if self.first_sighting_s.is_none()
+            && Visibility::of(&self.cameras, world.field(), pose, ball, self.target_side)
+                .ball_in_either()
+        {
+            self.first_sighting_s = Some(simulation.time().as_nanos() as f32 / 1e9);
         }
     }
 
@@ -422,9 +453,7 @@ impl Trace {
             .steps()
             .is_multiple_of(STEPS_PER_SECOND / 10)
         {
-            self.robot_path.push(position);
-            self.ball_path
-                .push(simulation.world().ball().position.truncate());
+            self.sample(simulation);
         }
     }
 
@@ -441,9 +470,7 @@ impl Trace {
             failure,
             expert_executed,
         } = end;
-        self.robot_path.push(self.last_position);
-        self.ball_path
-            .push(simulation.world().ball().position.truncate());
+        self.sample(simulation);
         EpisodeResult {
             setup: *setup,
             outcome,
@@ -451,6 +478,8 @@ impl Trace {
             distance_walked_m: self.distance,
             robot_path: self.robot_path,
             ball_path: self.ball_path,
+            heading_path: self.heading_path,
+            first_sighting_s: self.first_sighting_s,
             computed_commands,
             tick_times,
             failure,
@@ -537,7 +566,7 @@ fn run_linked(
     let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
     let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
     let mut tick_times = TickStats::new(config.control.budget);
-    let mut trace = Trace::new(setup);
+    let mut trace = Trace::new(setup, config.cameras);
     let mut computed_commands = 0;
     let mut expert_executed = 0;
     let mut failure = None;
