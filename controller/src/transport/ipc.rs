@@ -22,7 +22,7 @@
 use core::time::Duration;
 
 use iceoryx2::node::NodeView;
-use iceoryx2::port::listener::{Listener, ListenerWaitError};
+use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::Subscriber;
@@ -375,15 +375,52 @@ fn next_message<T: core::fmt::Debug + Copy + ZeroCopySend>(
 
 /// Sleeps until the other side signals, at most `timeout`. A signal (SIGINT, SIGTERM)
 /// only cuts the wait short: the caller's loop looks at its stop flag next.
+///
+/// The wait is a `ppoll` on the listener's socket, not iceoryx2's `timed_wait`: that one
+/// sets `SO_RCVTIMEO`, which the kernel counts in scheduler ticks, so on a kernel with
+/// `HZ=250` a 10 ms timeout lasts 12 to 16 ms and the lock-step watchdog published its stops
+/// every 16 ms instead of every 10 ms tick. `ppoll` sleeps on a high-resolution timer. The
+/// notifications that woke it are then taken without blocking.
 fn wait_for_event(
     listener: &Listener<Ipc>,
     timeout: Duration,
     what: &'static str,
 ) -> Result<(), TransportError> {
-    match listener.timed_wait(|_| {}, timeout) {
-        Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
-        Err(e) => Err(TransportError::ipc(what, e)),
+    if poll_readable(listener, timeout).map_err(|e| TransportError::ipc(what, e))? {
+        listener
+            .try_wait(|_| {})
+            .map_err(|e| TransportError::ipc(what, e))?;
     }
+    Ok(())
+}
+
+/// Whether the listener's socket became readable within `timeout`; an interrupting signal
+/// counts as not readable.
+#[allow(unsafe_code)]
+fn poll_readable(listener: &Listener<Ipc>, timeout: Duration) -> std::io::Result<bool> {
+    // SAFETY: the descriptor belongs to `listener`, which outlives this call; it is only
+    // polled, never closed or read here.
+    let fd = unsafe { listener.file_descriptor().native_handle() };
+    let mut poll = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let timeout = libc::timespec {
+        tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
+        // Below 1e9, so it fits every platform's c_long.
+        tv_nsec: timeout.subsec_nanos() as libc::c_long,
+    };
+    // SAFETY: one valid pollfd, a valid timespec and no signal mask, as ppoll(2) asks.
+    let ready = unsafe { libc::ppoll(&mut poll, 1, &timeout, core::ptr::null()) };
+    if ready < 0 {
+        let error = std::io::Error::last_os_error();
+        return match error.kind() {
+            std::io::ErrorKind::Interrupted => Ok(false),
+            _ => Err(error),
+        };
+    }
+    Ok(ready > 0)
 }
 
 /// Receives everything waiting and keeps the newest: older samples go back at once.
