@@ -5,10 +5,11 @@ with behaviour cloning (iteration 0) and the paper's best numbers beside them.
         --iteration DIR --iteration DIR ... --out DIR [--ship models/policy/dagger]
 
 Every number is read from the files `scripts/dagger` leaves in each iteration's model
-directory (`policy.toml`, `score_test.json`, `eval.json`, `select.json`) and from the rounds'
-`dataset.json`. With `--ship`, the iteration with the most goals on the held-out training
-episodes 90..99 (then the lowest validation error) is copied there with the table and plot;
-the test episodes play no part in that choice.
+directory (`policy.toml`, `score_test.json`, `select.json`, and for the chosen iteration
+`eval.json` and `fresh.json`) and from the rounds' `dataset.json`. `--chosen FILE` writes the
+directory of the iteration with the most goals on the selection episodes (then the lowest
+validation error; `selection.choose`); with `--ship` that iteration is copied there with the
+table and plot. The test episodes play no part in either.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ PAPER_TEST_ERROR = 0.14
 PAPER_GOALS = 4
 
 #: What a model directory keeps, and a shipped copy carries.
-MODEL_FILES = ("policy.toml", "loss_curve.png", "scores.json", "score_train.json", "score_test.json", "eval.json", "select.json", "eval_trajectories.png")
+MODEL_FILES = ("policy.toml", "loss_curve.png", "scores.json", "score_train.json", "score_test.json", "eval.json", "fresh.json", "select.json", "eval_trajectories.png")
 
 
 def read(path: Path) -> dict | None:
@@ -56,6 +57,7 @@ def iteration_row(number: int, directory: Path, rounds: Path | None) -> dict:
         "test_error": test["error"] if test else training.get("test_error"),
         "goals": goals(evaluation),
         "held_out": goals(read(directory / "select.json")),
+        "selection_seeds": seed_range(read(directory / "select.json")),
         "time_to_goal_s": statistics.median(times) if times else None,
         "training_wall_s": training.get("wall_time_s"),
         "datasets": 1 + len(training.get("added_datasets", [])),
@@ -69,6 +71,18 @@ def iteration_row(number: int, directory: Path, rounds: Path | None) -> dict:
     return row
 
 
+def seed_range(summary: dict | None) -> str | None:
+    if summary is None:
+        return None
+    seeds = sorted(int(e["seed"]) for e in summary["episodes"])
+    return f"{seeds[0]}..{seeds[-1]}"
+
+
+def selection_label(rows: list[dict]) -> str:
+    ranges = sorted({r["selection_seeds"] for r in rows if r.get("selection_seeds")})
+    return "seeds " + ", ".join(ranges) if ranges else "none run"
+
+
 def fmt(value, digits: int = 3) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
@@ -79,7 +93,7 @@ def fraction(pair: tuple[int, int] | None) -> str:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| iteration | round recorded with (beta) | round: episodes, rows, goals | validation error | test error | goals (test) | median time to goal | goals /10 (selection: seeds 90..99) |",
+        f"| iteration | round recorded with (beta) | round: episodes, rows, goals | validation error | test error | goals (test) | median time to goal | goals (selection: {selection_label(rows)}) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
@@ -106,9 +120,9 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
     iterations = [r["iteration"] for r in rows]
     figure, goal_axis = plt.subplots(figsize=(7, 4), dpi=120)
     test_goals = [r["goals"][0] if r["goals"] else float("nan") for r in rows]
-    held_goals = [r["held_out"][0] * 2 if r["held_out"] else float("nan") for r in rows]
+    held_goals = [20 * r["held_out"][0] / r["held_out"][1] if r["held_out"] else float("nan") for r in rows]
     goal_axis.plot(iterations, test_goals, "o-", color="tab:green", label="goals, 20 test episodes")
-    goal_axis.plot(iterations, held_goals, "s--", color="tab:olive", label="goals, selection seeds 90..99 (x2, per 20)")
+    goal_axis.plot(iterations, held_goals, "s--", color="tab:olive", label=f"goals, selection ({selection_label(rows)}), per 20")
     goal_axis.axhline(PAPER_GOALS, color="tab:green", linestyle=":", linewidth=1, label=f"paper's best: {PAPER_GOALS} goals")
     goal_axis.set_xlabel("DAgger iteration (0: behaviour cloning)")
     goal_axis.set_ylabel("goals per 20 episodes", color="tab:green")
@@ -150,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iteration", type=Path, action="append", default=[], help="an iteration's model directory, in order")
     parser.add_argument("--rounds", type=Path, help="directory of the rounds' datasets (round-<i>/), for their beta, rows and goals")
     parser.add_argument("--out", type=Path, required=True, help="where dagger.md and dagger.png go")
+    parser.add_argument("--chosen", type=Path, help="write the chosen iteration's directory into this file")
     parser.add_argument("--ship", type=Path, help="copy the chosen iteration here, with the table and the plot")
     args = parser.parse_args(argv)
     present = [d for d in args.iteration if (d / "policy.toml").is_file()]
@@ -163,6 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "dagger.json").write_text(json.dumps(rows, indent=1) + "\n")
     plot(rows, args.out / "dagger.png", f"DAgger from {args.base.name}")
     print(text)
+    if args.chosen is not None and len(rows) > 1:
+        args.chosen.write_text(choose(rows[1:])["directory"] + "\n")
     if args.ship is not None and len(rows) > 1:
         chosen = choose(rows[1:])
         source = Path(chosen["directory"])

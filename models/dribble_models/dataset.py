@@ -30,9 +30,20 @@ class Episode:
     bottom: np.ndarray  # u8 [T, 60, 80]
     command: np.ndarray  # f32 [T, 3]
     phase: np.ndarray  # u8 [T]
+    # Ground truth beside the images, for analysis only (never a network input): the robot's
+    # pose (x m, y m, heading rad) and the ball (x m, y m) on the field, and the simulated time.
+    robot_pose: np.ndarray | None = None  # f32 [T, 3]
+    ball: np.ndarray | None = None  # f32 [T, 2]
+    time_s: np.ndarray | None = None  # f64 [T]
 
     def __len__(self) -> int:
         return len(self.phase)
+
+    def rows(self, start: int, end: int) -> "Episode":
+        """Rows start..end (exclusive) as an episode of the same seed."""
+        part = slice(start, end)
+        optional = (None if a is None else a[part] for a in (self.robot_pose, self.ball, self.time_s))
+        return Episode(self.seed, self.top[part], self.bottom[part], self.command[part], self.phase[part], *optional)
 
 
 @dataclass
@@ -116,6 +127,9 @@ def load(directory: Path, require_seeds: list[int] | None = None) -> Dataset:
                 bottom=arrays["bottom"],
                 command=arrays["command"].astype(np.float32),
                 phase=arrays["phase"],
+                robot_pose=arrays["robot_pose"] if "robot_pose" in arrays.files else None,
+                ball=arrays["ball"] if "ball" in arrays.files else None,
+                time_s=arrays["time_s"] if "time_s" in arrays.files else None,
             )
         rows = len(episode)
         shapes = (episode.top.shape, episode.bottom.shape, episode.command.shape)

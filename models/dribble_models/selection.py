@@ -4,9 +4,12 @@ error. The selection episodes are training seeds held out from fitting (90..99) 
 selection seeds 20000..20049 (shared/DESIGN.md, "Metrics"); test seeds (10000..10019,
 30000..30099) are for reporting only, and a `select.json` that holds one is refused.
 
-A candidate without a `select.json` was never evaluated for selection: it is ranked after
-every candidate that was, and the reason says so. Candidates evaluated on different seeds
-cannot be compared: that is refused too.
+The choice is made on one set of seeds: the largest any candidate was evaluated on (the
+selection seeds 20000..20049 once they are run; the retired 90..99 before). A candidate
+without a `select.json`, or with one on other seeds, is ranked after every candidate on the
+chosen set, and the reason says so: its run must be repeated to compete. Candidates on the
+same seeds but run by different engines cannot be compared (a closed loop amplifies an
+engine's rounding): that is refused.
 """
 
 from __future__ import annotations
@@ -59,26 +62,43 @@ class Candidate:
     selection: Selection | None
     validation_error: float | None
 
-    def key(self) -> tuple:
-        goals = self.selection.goals if self.selection else -1
+    def key(self, seeds: tuple[int, ...] | None = None) -> tuple:
+        counted = self.selection is not None and (seeds is None or self.selection.seeds == seeds)
+        goals = self.selection.goals if counted else -1
         validation = self.validation_error if self.validation_error is not None else math.inf
         return (-goals, validation, self.name)
 
-    def reason(self) -> str:
+    def reason(self, seeds: tuple[int, ...] | None = None) -> str:
         validation = "no validation error" if self.validation_error is None else f"validation error {self.validation_error:.3f}"
         if self.selection is None:
             return f"no selection run (select.json), {validation}"
+        if seeds is not None and self.selection.seeds != seeds:
+            return (
+                f"selection run on seeds {describe(self.selection.seeds)}, not the chosen set {describe(seeds)}: "
+                f"ranked last until run again, {validation}"
+            )
         return f"{self.selection.goals} goals in {self.selection.episodes} selection episodes, {validation}"
 
 
+def describe(seeds: tuple[int, ...]) -> str:
+    return f"{seeds[0]}..{seeds[-1]} ({len(seeds)})"
+
+
+def chosen_seeds(candidates: list[Candidate]) -> tuple[int, ...] | None:
+    """The seed set the choice is made on: the largest any candidate was evaluated on (the
+    larger set has more power); on a tie in size, the later seeds (the newer set)."""
+    sets = {c.selection.seeds for c in candidates if c.selection is not None}
+    return max(sets, key=lambda s: (len(s), s)) if sets else None
+
+
 def choose(candidates: list[Candidate]) -> Candidate:
-    """Most selection goals, then the lowest validation error, then the name (so a tie is
-    decided the same way every time). Every candidate that has a selection run must have it
-    on the same seeds."""
+    """Most selection goals on the chosen seed set, then the lowest validation error, then
+    the name (so a tie is decided the same way every time)."""
     if not candidates:
         raise SelectionError("nothing to choose from")
-    seed_sets = {c.selection.seeds for c in candidates if c.selection is not None}
-    if len(seed_sets) > 1:
-        described = "; ".join(f"{c.name}: {c.selection.seeds[0]}..{c.selection.seeds[-1]} ({c.selection.episodes})" for c in candidates if c.selection)
-        raise SelectionError(f"the candidates were evaluated on different selection seeds: {described}")
-    return min(candidates, key=Candidate.key)
+    seeds = chosen_seeds(candidates)
+    engines = {c.selection.engine for c in candidates if c.selection is not None and c.selection.seeds == seeds}
+    if len(engines) > 1:
+        described = "; ".join(f"{c.name}: {c.selection.engine}" for c in candidates if c.selection is not None and c.selection.seeds == seeds)
+        raise SelectionError(f"the candidates' selection runs on {describe(seeds)} were run by different engines, run them again with one: {described}")
+    return min(candidates, key=lambda c: c.key(seeds))

@@ -51,6 +51,7 @@ from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
 from .networks import CNN, HCNN, RCNN, ModalCNN
+from .stalls import CutReport, StallRule, cut_all
 
 SCALE = np.float32(contract.INPUT_SCALE)
 DEFAULT_EPOCHS = {"cnn": 12, "hcnn": 12, "rcnn": 12}
@@ -280,11 +281,17 @@ class Training:
         self.validation_seeds = ordered[len(ordered) - held :]
         self.train_episodes = dataset.subset(ordered[: len(ordered) - held])
         self.validation_episodes = dataset.subset(self.validation_seeds)
+        self.cut_reports: list[tuple[Path, CutReport]] = []
         for extra in self.added:
             shared = sorted(set(extra.seeds()) & set(self.validation_seeds))
             if shared:
                 raise DatasetError(f"{extra.directory} holds the validation episodes {shared} of {dataset.directory}: they would be trained on")
-            self.train_episodes = self.train_episodes + extra.episodes
+            episodes = extra.episodes
+            if args.cut_stalls is not None:
+                episodes, report = cut_all(episodes, StallRule(after_s=args.cut_stalls))
+                self.cut_reports.append((extra.directory, report))
+                print(f"  {extra.directory.name}: {report.describe()}", file=sys.stderr)
+            self.train_episodes = self.train_episodes + episodes
         torch.manual_seed(args.seed)
         self.augment = Augment() if args.augment else None
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
@@ -543,6 +550,8 @@ def notes_of(args: argparse.Namespace) -> str:
         parts.append("phase-balanced sampling")
     if args.add_dataset:
         parts.append(f"plus every episode of {', '.join(d.name for d in args.add_dataset)} (expert-labelled, policy-driven)")
+    if args.add_dataset and args.cut_stalls is not None:
+        parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:
         parts.append(f"started from the kept weights of {args.init_from} (sha256 {file_sha256(args.init_from)[:12]})")
     parts.append("train_error over every episode of the training dataset (validation ones too)")
@@ -559,6 +568,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--dataset", type=Path, required=True, help="training data: a `dribble record` directory")
     parser.add_argument("--out", type=Path, required=True, help="model directory to write (policy.toml, ONNX, loss curve, scores)")
     parser.add_argument("--add-dataset", type=Path, action="append", default=[], help="more training data, every episode of it (DAgger's policy-driven, expert-labelled rounds); repeatable")
+    parser.add_argument("--cut-stalls", type=float, metavar="SECONDS", help="in the --add-dataset rounds, drop the rows of a stall (robot and ball still) after its first SECONDS (dribble_models.stalls explains why)")
     parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote) instead of random ones")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
@@ -582,6 +592,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         args.epochs = DEFAULT_EPOCHS[args.kind]
     if not 0.0 < args.epoch_fraction <= 1.0:
         parser.error("--epoch-fraction must be in (0, 1]")
+    if args.cut_stalls is not None and not args.cut_stalls > 0:
+        parser.error("--cut-stalls is a positive number of seconds")
     if args.modes < 1 or (args.modes > 1 and args.kind != "cnn"):
         parser.error("--modes is 1, or more for --kind cnn only")
     return args

@@ -55,7 +55,12 @@ def test_one_tiny_dagger_iteration_runs_the_whole_loop(tmp_path, rng):
     manifest = (model / "policy.toml").read_text()
     assert 'name = "round-1"' in manifest and index["content_hash"] in manifest
     assert "started from the kept weights of" in manifest
-    for name in ("score_test.json", "eval.json", "select.json", "eval_trajectories.png"):
+    assert "stalls in them cut after 3 s" in manifest
+    # The only iteration is the chosen one: it alone is evaluated on the test seeds.
+    assert (tmp_path / "dagger" / "base-warm" / "CHOSEN").read_text().strip() == str(model)
+    assert [e["seed"] for e in json.loads((model / "select.json").read_text())["episodes"]] == [20000]
+    assert [e["seed"] for e in json.loads((model / "fresh.json").read_text())["episodes"]] == [30000]
+    for name in ("score_test.json", "eval.json", "fresh.json", "select.json", "eval_trajectories.png"):
         assert (model / name).is_file(), name
     report = (tmp_path / "dagger" / "base-warm" / "dagger.md").read_text().splitlines()
     assert report[2].startswith("| 0 | behaviour cloning") and report[3].startswith("| 1 | iteration 0's policy (0.5000)")
@@ -64,4 +69,4 @@ def test_one_tiny_dagger_iteration_runs_the_whole_loop(tmp_path, rng):
     # Run again: everything is kept.
     again = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-4000:]
-    assert again.stdout.count("kept:") == 4, again.stdout
+    assert again.stdout.count("kept:") == 5, again.stdout

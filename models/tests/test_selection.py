@@ -60,14 +60,25 @@ def test_test_seeds_in_a_selection_file_are_refused(tmp_path):
             read_selection(path)
 
 
-def test_candidates_on_different_seeds_cannot_be_compared(tmp_path):
-    a = read_selection(write_run(tmp_path / "a.json", range(90, 100), {90}))
-    b = read_selection(write_run(tmp_path / "b.json", range(20000, 20050), {20000}))
-    assert a.seeds != b.seeds
-    with pytest.raises(SelectionError, match="different selection seeds"):
-        choose([Candidate("a", a, 0.1), Candidate("b", b, 0.1)])
+def test_the_choice_is_made_on_the_largest_seed_set_and_other_runs_rank_last(tmp_path):
+    # "old" scored every one of the retired seeds 90..99; "new" 1 of the 50 selection seeds.
+    # They cannot be compared: the choice is made on the larger set, "old" must run again.
+    old = read_selection(write_run(tmp_path / "old.json", range(90, 100), set(range(90, 100))))
+    new = read_selection(write_run(tmp_path / "new.json", range(20000, 20050), {20000}))
+    candidates = [Candidate("old", old, 0.1), Candidate("new", new, 0.2)]
+    assert choose(candidates).name == "new"
+    assert "not the chosen set 20000..20049 (50)" in candidates[0].reason(new.seeds)
     with pytest.raises(SelectionError):
         choose([])
+
+
+def test_runs_by_different_engines_on_the_same_seeds_are_refused(tmp_path):
+    a = read_selection(write_run(tmp_path / "a.json", range(20000, 20050), {20000}))
+    path = write_run(tmp_path / "b.json", range(20000, 20050), {20001})
+    path.write_text(path.read_text().replace("compiled (avx2+fma)", "tract"))
+    b = read_selection(path)
+    with pytest.raises(SelectionError, match="different engines"):
+        choose([Candidate("a", a, 0.1), Candidate("b", b, 0.1)])
 
 
 def test_the_committed_choice_follows_the_rule():

@@ -143,7 +143,8 @@ def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path,
     (out / "eval.json").write_text(json.dumps({"engine": "compiled (sse4.2)", "episodes": [{"outcome": "goal", "duration_s": 20.0}]}))
     assert results_main(["--row", f"tiny={out}", "--out", str(table)]) == 0
     row = next(line for line in table.read_text().splitlines() if line.startswith("| tiny |"))
-    assert "| 1 | 20.0 s |" in row and "| compiled (sse4.2) |" in row
+    # One goal in one episode: the Wilson 95 % interval 0.21-1.00; no fresh-seed run.
+    assert "| 1 / 1 (0.21-1.00) | - | 20.0 s |" in row and "| compiled (sse4.2) |" in row
     (out / "eval.json").unlink()
     assert (tmp_path / "SHIPPED").read_text().strip() == out.name
     # Run again: the checkpoint is complete, so it resumes at the end and exports the same.
