@@ -76,6 +76,26 @@ pub struct JobPlan<'a> {
     pub scratch: PathBuf,
 }
 
+/// The iceoryx2 domain of job `index`: the parent's name and `-job<index>`, within the 32
+/// characters a domain name may have. A parent name too long for the suffix keeps its start
+/// and gives the rest to a hash of the whole name, so that two parents never share a job's
+/// domain (a test's names carry its process id, which grows).
+fn job_domain(parent: &str, index: usize) -> String {
+    const MAX: usize = 32;
+    let suffix = format!("-job{index}");
+    if parent.len() + suffix.len() <= MAX {
+        return format!("{parent}{suffix}");
+    }
+    // FNV-1a: stable across runs and platforms, unlike the standard library's hasher.
+    let hash = parent.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    });
+    let hash = format!("{:08x}", hash as u32);
+    let keep = MAX.saturating_sub(suffix.len() + hash.len() + 1);
+    let start: String = parent.chars().take(keep).collect();
+    format!("{start}-{hash}{suffix}")
+}
+
 /// One child `dribble eval` and where its output goes.
 struct Job {
     seeds: Range<u64>,
@@ -109,7 +129,7 @@ pub fn play(plan: &JobPlan<'_>) -> anyhow::Result<(Vec<EpisodeResult>, Option<St
             .arg("--episodes")
             .arg(format!("{}..{}", seeds.start, seeds.end))
             .arg("--domain")
-            .arg(format!("{}-job{index}", plan.domain))
+            .arg(job_domain(&plan.domain, index))
             .arg("--plot")
             .arg(file("png"))
             .arg("--trajectories")
@@ -198,6 +218,26 @@ mod tests {
         assert_eq!(shards(0..7, 3), [0..3, 3..5, 5..7]);
         assert_eq!(shards(5..7, 4), [5..6, 6..7]);
         assert_eq!(shards(3..4, 1), vec![(3..4)]);
+    }
+
+    #[test]
+    fn a_long_parent_domain_gives_valid_distinct_job_domains() {
+        assert_eq!(job_domain("mine", 3), "mine-job3");
+        let (a, b) = (
+            "dribble-jobs-test-jobs-19833",
+            "dribble-jobs-test-jobs-19834",
+        );
+        for index in [0, 1, 12] {
+            let (x, y) = (job_domain(a, index), job_domain(b, index));
+            assert!(x.len() <= 32 && y.len() <= 32, "{x} {y}");
+            assert_ne!(x, y);
+            assert!(x.ends_with(&format!("-job{index}")), "{x}");
+            assert!(
+                dribble_controller::transport::ipc::Domain::new(Some(&x)).is_ok(),
+                "{x}"
+            );
+        }
+        assert_eq!(job_domain(a, 0), job_domain(a, 0));
     }
 
     #[test]

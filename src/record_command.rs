@@ -77,20 +77,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let (simulator, expert, driver) =
         configuration(args, &config, &expert_config, policy.as_ref())?;
     let mut index = open_index(args, simulator, expert, driver)?;
-    let done = |seed: u64| {
-        index
-            .episodes
-            .iter()
-            .any(|e| e.seed == seed && args.out.join(&e.file).is_file())
-    };
-    let todo: Vec<u64> = args.episodes.0.clone().filter(|&s| !done(s)).collect();
-    let skipped = args.episodes.0.clone().count() - todo.len();
-    if skipped > 0 {
-        println!(
-            "{skipped} episode(s) already recorded in {}, kept",
-            args.out.display()
-        );
-    }
+    let todo = episodes_to_record(args, &index);
     let mut renderer = Renderer::new(
         &FieldGeometry::SPL,
         config.world.goal_depth,
@@ -98,13 +85,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     )?;
     println!("adapter: {}", renderer.adapter());
 
-    let progress = ProgressBar::new(todo.len() as u64);
-    progress.set_style(
-        ProgressStyle::with_template(
-            "{bar:30} {pos}/{len} episodes, {elapsed} elapsed, eta {eta}  {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
+    let progress = episode_progress(todo.len());
     let started = Instant::now();
     let (mut simulated, mut bytes_written) = (0.0f64, 0u64);
     let mut session: Option<ControllerSession> = None;
@@ -125,15 +106,11 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         let driver = match &policy {
             None => Driver::Expert(expert),
             Some((path, _)) => {
-                if session.is_none() {
-                    session = Some(progress.suspend(|| {
-                        ControllerSession::open(&args.controller, path, config.control)
-                    })?);
-                }
-                let link = session
-                    .as_mut()
-                    .map(ControllerSession::link)
-                    .context("no controller session")?;
+                let open = || ControllerSession::open(&args.controller, path, config.control);
+                let link = match &mut session {
+                    Some(session) => session.link(),
+                    None => session.insert(progress.suspend(open)?).link(),
+                };
                 let labels = ExpertLabels::new(expert, args.beta, seed);
                 Driver::LabelledController(link, Box::new(labels))
             }
@@ -169,36 +146,18 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         let bytes = keep_episode(args, &mut index, seed, &result, &recording)?;
         simulated += f64::from(result.duration_s);
         bytes_written += bytes;
-        let executed = if policy.is_some() {
-            format!(
-                ", expert's command executed {} of {} times",
-                result.expert_executed,
-                recording.rows()
-            )
-        } else {
-            String::new()
-        };
-        progress.suspend(|| {
-            println!(
-                "episode {seed}: {} after {:.1} s, {} rows, {:.1} MB{executed}",
-                result.outcome.name(),
-                result.duration_s,
-                recording.rows(),
-                bytes as f64 / 1e6
-            )
-        });
+        progress.suspend(|| announce(seed, &result, &recording, bytes, policy.is_some()));
         progress.inc(1);
     }
     progress.finish_and_clear();
     if let Some(session) = session.take() {
         session.finish(&args.controller);
     }
-    let wall = started.elapsed().as_secs_f64();
     if !todo.is_empty() {
+        let wall = started.elapsed().as_secs_f64();
         println!(
-            "recorded {} episodes in {:.1} s: {:.1} episodes per minute, {:.1} simulated seconds per wall second, {:.1} MB",
+            "recorded {} episodes in {wall:.1} s: {:.1} episodes per minute, {:.1} simulated seconds per wall second, {:.1} MB",
             todo.len(),
-            wall,
             todo.len() as f64 / wall * 60.0,
             simulated / wall,
             bytes_written as f64 / 1e6
@@ -207,8 +166,62 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     report_dataset(args, &mut index, !todo.is_empty())
 }
 
-/// What the dataset records of how it was made: the simulator, the expert and the driver
-/// (a resumed recording must match all three).
+/// The asked-for seeds whose episodes are not in the dataset yet (a rerun resumes).
+fn episodes_to_record(args: &RecordArgs, index: &DatasetIndex) -> Vec<u64> {
+    let done = |seed: u64| {
+        index
+            .episodes
+            .iter()
+            .any(|e| e.seed == seed && args.out.join(&e.file).is_file())
+    };
+    let todo: Vec<u64> = args.episodes.0.clone().filter(|&s| !done(s)).collect();
+    let skipped = args.episodes.0.clone().count() - todo.len();
+    if skipped > 0 {
+        println!(
+            "{skipped} episode(s) already recorded in {}, kept",
+            args.out.display()
+        );
+    }
+    todo
+}
+
+fn episode_progress(episodes: usize) -> ProgressBar {
+    let progress = ProgressBar::new(episodes as u64);
+    progress.set_style(
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} episodes, {elapsed} elapsed, eta {eta}  {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    progress
+}
+
+/// One line per recorded episode.
+fn announce(
+    seed: u64,
+    result: &EpisodeResult,
+    recording: &EpisodeRecording,
+    bytes: u64,
+    policy_drove: bool,
+) {
+    let executed = if policy_drove {
+        format!(
+            ", expert's command executed {} of {} times",
+            result.expert_executed,
+            recording.rows()
+        )
+    } else {
+        String::new()
+    };
+    println!(
+        "episode {seed}: {} after {:.1} s, {} rows, {:.1} MB{executed}",
+        result.outcome.name(),
+        result.duration_s,
+        recording.rows(),
+        bytes as f64 / 1e6
+    );
+}
+
 fn configuration(
     args: &RecordArgs,
     config: &EpisodeConfig,

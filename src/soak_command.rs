@@ -412,6 +412,29 @@ impl RobotSide {
     }
 
     /// Publishes the frames due at `now` (painted in any case; sent while `publish`).
+    /// Reads the controller's commands until `until`: through the camera ports while they are
+    /// open, else through the motion side's monitor.
+    fn read_until(
+        &mut self,
+        watch: &mut CommandWatch,
+        plan: Option<&mut FaultPlan>,
+        clock: &MonotonicClock,
+        until: Timestamp,
+    ) -> anyhow::Result<()> {
+        match (self.ports.as_mut(), self.motion_side.as_mut()) {
+            (Some(open), _) => read_commands(open, watch, plan, clock, until),
+            (None, Some(monitor)) => {
+                std::thread::sleep(Duration::from_micros(200));
+                drain_monitor(monitor, watch, plan, clock)
+            }
+            (None, None) => {
+                std::thread::sleep(Duration::from_micros(200));
+                Ok(())
+            }
+        }
+        .context("cannot read the controller's commands")
+    }
+
     fn publish_due(&mut self, now: Timestamp, publish: bool) -> anyhow::Result<()> {
         let due = self.cameras.poll(now);
         if let Some(ports) = self.ports.as_mut().filter(|_| publish) {
@@ -462,14 +485,10 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     let config = LoopConfig::default();
     let clock = MonotonicClock;
     let mut watch = CommandWatch::new(&config);
-    let csv_path = args.out.join("soak.csv");
-    let mut csv = fs::File::create(&csv_path)
-        .with_context(|| format!("cannot write {}", csv_path.display()))?;
-    writeln!(csv, "{}", Second::HEADER)?;
-
     let duration = Duration::from_secs_f64(args.minutes * 60.0);
     let start = clock.now();
     let end = start + duration;
+    let mut seconds = SecondLog::create(&args.out.join("soak.csv"), start, duration)?;
     let mut plan = if args.faults {
         Some(FaultPlan::new(
             start + Duration::from_secs_f64(args.warm_up_s),
@@ -491,13 +510,6 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
             start,
         ),
     };
-    let mut next_sample = start + Duration::from_secs(1);
-    let mut seconds: Vec<Second> = Vec::new();
-    let progress = ProgressBar::new(duration.as_secs());
-    progress.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} s  {msg}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
     let outcome: anyhow::Result<()> = loop {
         let now = clock.now();
         if now >= end {
@@ -517,21 +529,10 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         if let Err(error) = side.publish_due(now, publish) {
             break Err(error);
         }
-        if now >= next_sample {
-            let elapsed_s = now.saturating_since(start).as_secs_f64();
-            let (rss_kib, open_files) = match sample_process(pid) {
-                Ok(sample) => sample,
-                Err(error) => break Err(error),
-            };
-            let second = watch.close_second(elapsed_s, rss_kib, open_files);
-            writeln!(csv, "{}", second.csv())?;
-            progress.set_position(elapsed_s as u64);
-            progress.set_message(format!(
-                "RSS {} KiB, {} files, latency p99 {:.0} µs, lost {}",
-                rss_kib, open_files, second.latency_p99_us, watch.totals.lost
-            ));
-            seconds.push(second);
-            next_sample = next_sample + Duration::from_secs(1);
+        if now >= seconds.next
+            && let Err(error) = seconds.close(now, pid, &mut watch)
+        {
+            break Err(error);
         }
         if let Some(status) = controller.0.try_wait()? {
             break Err(anyhow::anyhow!(
@@ -539,28 +540,66 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
             ));
         }
         // Commands until the next event, in waits of at most 1 ms.
-        let next_event = side.cameras.next_due().min(next_sample);
-        let Some(open) = side.ports.as_mut() else {
-            std::thread::sleep(Duration::from_micros(200));
-            if let Some(monitor) = side.motion_side.as_mut()
-                && let Err(error) = drain_monitor(monitor, &mut watch, plan.as_mut(), &clock)
-            {
-                break Err(error).context("cannot read the controller's commands");
-            }
-            continue;
-        };
-        if let Err(error) = read_commands(open, &mut watch, plan.as_mut(), &clock, next_event) {
-            break Err(error).context("cannot read the controller's commands");
+        let next_event = side.cameras.next_due().min(seconds.next);
+        if let Err(error) = side.read_until(&mut watch, plan.as_mut(), &clock, next_event) {
+            break Err(error);
         }
     };
-    progress.finish_and_clear();
+    seconds.progress.finish_and_clear();
     drop(controller);
     outcome?;
     let faults = plan.map(|mut plan| {
         let text = fs::read_to_string(&log).unwrap_or_default();
         plan.reports(&text)
     });
-    summarise(args, &seconds, &mut watch, faults.as_deref())
+    summarise(args, &seconds.seconds, &mut watch, faults.as_deref())
+}
+
+/// The soak's seconds: each closed one is a row of `soak.csv`, kept for the summary, and
+/// moves the progress bar.
+struct SecondLog {
+    csv: fs::File,
+    start: Timestamp,
+    /// When the next second closes.
+    next: Timestamp,
+    seconds: Vec<Second>,
+    progress: ProgressBar,
+}
+
+impl SecondLog {
+    fn create(path: &Path, start: Timestamp, duration: Duration) -> anyhow::Result<Self> {
+        let mut csv =
+            fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+        writeln!(csv, "{}", Second::HEADER)?;
+        let progress = ProgressBar::new(duration.as_secs());
+        progress.set_style(
+            ProgressStyle::with_template("{bar:30} {pos}/{len} s  {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        Ok(Self {
+            csv,
+            start,
+            next: start + Duration::from_secs(1),
+            seconds: Vec::new(),
+            progress,
+        })
+    }
+
+    /// Closes the second that ended at `now`, with the controller's memory and open files.
+    fn close(&mut self, now: Timestamp, pid: u32, watch: &mut CommandWatch) -> anyhow::Result<()> {
+        let elapsed_s = now.saturating_since(self.start).as_secs_f64();
+        let (rss_kib, open_files) = sample_process(pid)?;
+        let second = watch.close_second(elapsed_s, rss_kib, open_files);
+        writeln!(self.csv, "{}", second.csv())?;
+        self.progress.set_position(elapsed_s as u64);
+        self.progress.set_message(format!(
+            "RSS {} KiB, {} files, latency p99 {:.0} µs, lost {}",
+            rss_kib, open_files, second.latency_p99_us, watch.totals.lost
+        ));
+        self.seconds.push(second);
+        self.next = self.next + Duration::from_secs(1);
+        Ok(())
+    }
 }
 
 /// Reads every command that arrives until `until`.
@@ -655,6 +694,58 @@ fn failures(
 }
 
 /// Prints and writes the summary; fails if a criterion is not met.
+/// The controller's memory and open files over the soak.
+#[derive(Clone, Copy, Debug)]
+struct MemoryAccount {
+    /// Resident set at the end of the warm-up (or at the first second after it), KiB.
+    rss_start: u64,
+    rss_end: u64,
+    /// The most after the warm-up, KiB, and its growth over `rss_start`.
+    rss_max: u64,
+    growth: u64,
+    /// Open files in the first and the last second.
+    files: (u64, u64),
+}
+
+impl MemoryAccount {
+    fn of(seconds: &[Second], warm_up_s: f64) -> Self {
+        let (warm_up, settled): (Vec<&Second>, Vec<&Second>) =
+            seconds.iter().partition(|s| s.elapsed_s <= warm_up_s);
+        let rss_start = warm_up
+            .last()
+            .or(settled.first())
+            .map_or(0, |second| second.rss_kib);
+        let rss_max = settled.iter().map(|s| s.rss_kib).max().unwrap_or(rss_start);
+        Self {
+            rss_start,
+            rss_end: seconds.last().map_or(0, |second| second.rss_kib),
+            rss_max,
+            growth: rss_max.saturating_sub(rss_start),
+            files: (
+                seconds.first().map_or(0, |s| s.open_files),
+                seconds.last().map_or(0, |s| s.open_files),
+            ),
+        }
+    }
+}
+
+/// Prints each fault's verdict; the same as JSON for soak.json.
+fn fault_reports(faults: &[FaultReport]) -> Vec<serde_json::Value> {
+    for report in faults {
+        let verdict = if report.passed {
+            "as documented"
+        } else {
+            "NOT as documented"
+        };
+        let (kind, detail) = (report.kind.name(), &report.detail);
+        println!("soak: fault {kind}: {verdict} ({detail})");
+    }
+    faults
+        .iter()
+        .map(|r| json!({"fault": r.kind.name(), "passed": r.passed, "detail": r.detail}))
+        .collect()
+}
+
 fn summarise(
     args: &SoakArgs,
     seconds: &[Second],
@@ -662,19 +753,13 @@ fn summarise(
     faults: Option<&[FaultReport]>,
 ) -> anyhow::Result<()> {
     let totals = watch.totals;
-    let (warm_up, settled): (Vec<&Second>, Vec<&Second>) =
-        seconds.iter().partition(|s| s.elapsed_s <= args.warm_up_s);
-    let rss_start = warm_up
-        .last()
-        .or(settled.first())
-        .map_or(0, |second| second.rss_kib);
-    let rss_end = seconds.last().map_or(0, |second| second.rss_kib);
-    let rss_max = settled.iter().map(|s| s.rss_kib).max().unwrap_or(rss_start);
-    let growth = rss_max.saturating_sub(rss_start);
-    let files = (
-        seconds.first().map_or(0, |s| s.open_files),
-        seconds.last().map_or(0, |s| s.open_files),
-    );
+    let MemoryAccount {
+        rss_start,
+        rss_end,
+        rss_max,
+        growth,
+        files,
+    } = MemoryAccount::of(seconds, args.warm_up_s);
     watch.all_latencies.sort_by(f64::total_cmp);
     let latency = |q: f64| quantile(&watch.all_latencies, q);
     let missed = totals.missed;
@@ -703,23 +788,7 @@ fn summarise(
          end (max {rss_max}, growth {growth} KiB); open files {} -> {}",
         args.warm_up_s, files.0, files.1
     );
-    for report in faults.unwrap_or_default() {
-        println!(
-            "soak: fault {}: {} ({})",
-            report.kind.name(),
-            if report.passed {
-                "as documented"
-            } else {
-                "NOT as documented"
-            },
-            report.detail
-        );
-    }
-    let fault_json: Vec<_> = faults
-        .unwrap_or_default()
-        .iter()
-        .map(|r| json!({"fault": r.kind.name(), "passed": r.passed, "detail": r.detail}))
-        .collect();
+    let fault_json = fault_reports(faults.unwrap_or_default());
     // The controller's own account, printed as it stops (SIGTERM): ticks, frames and its tick
     // time from inside the loop.
     let controller_log = fs::read_to_string(args.out.join("controller.log")).unwrap_or_default();
