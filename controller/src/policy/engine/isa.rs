@@ -96,7 +96,7 @@ impl Isa {
     }
 
     /// Whether this set's kernels compute a 5x5 convolution of stride two and its 2x2 pool
-    /// with fewer multiplications ([`super::winograd`]), and the lanes of the vectors they
+    /// with fewer multiplications ([`super::kernels::winograd`]), and the lanes of the vectors they
     /// do it with: the input channels must be a whole number of them, the output channels
     /// of twice as many. Not on the 32-bit V5 build, whose direct kernels are written in
     /// assembly for its eight registers and counted under callgrind (`cross/README.md`), nor

@@ -15,6 +15,7 @@
 
 pub mod isa;
 mod kernels;
+mod layout;
 mod lower;
 pub mod onnx_builder;
 pub mod oracle;
@@ -22,11 +23,6 @@ pub mod peak;
 mod plan;
 #[cfg(test)]
 mod proptest;
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-mod simd;
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-mod window_asm;
-mod winograd;
 
 use std::path::{Path, PathBuf};
 
@@ -35,7 +31,8 @@ use tract_onnx::pb;
 pub use isa::Isa;
 pub use lower::{MAX_ELEMENTS, MAX_PLAN_ELEMENTS, Unsupported};
 
-use plan::{BufferId, Step};
+use layout::BufferId;
+use plan::Step;
 
 /// A network lowered to a static plan for one instruction set.
 #[derive(Debug)]
@@ -209,7 +206,7 @@ impl CompiledNetwork {
 }
 
 // Calling the kernels compiled for an instruction set is sound only on a CPU that has it.
-// (The kernels' own `unsafe` blocks, in `simd`, `winograd` and `window_asm`, rest on bounds
+// (The kernels' own `unsafe` blocks, in `kernels::{simd, winograd, window_asm}`, rest on bounds
 // each kernel checks once before its loops, with checked arithmetic.)
 #[allow(unsafe_code)]
 fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
@@ -233,12 +230,13 @@ fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u3
 /// The portable path: no target features, product and sum rounded separately.
 #[inline(never)]
 fn run_portable(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
-    plan::run::<plan::Generic<kernels::Separate>>(steps, buffers, nonzero);
+    plan::run::<kernels::Generic<kernels::Separate>>(steps, buffers, nonzero);
 }
 
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod x86 {
-    use super::plan::{Avx512Kernels, AvxKernels, SseKernels, Step, run};
+    use super::kernels::{Avx512Kernels, AvxKernels, SseKernels};
+    use super::plan::{Step, run};
 
     #[target_feature(enable = "avx,avx2,fma,avx512f")]
     pub(super) fn run_avx512(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
@@ -290,14 +288,14 @@ mod tests {
         for len in [0, 1, 7, 8, 25 * 16, 1000] {
             let values: Vec<f32> = (0..len).map(|i| i as f32 * 0.5 - 3.0).collect();
             // Moved after construction, as a plan's steps are.
-            let weights = vec![plan::AlignedWeights::new(&values)].remove(0);
+            let weights = vec![layout::AlignedWeights::new(&values)].remove(0);
             let slice = weights.as_slice();
             assert_eq!(slice, &values[..], "length {len}");
             assert!(
                 slice
                     .as_ptr()
                     .addr()
-                    .is_multiple_of(plan::AlignedWeights::ALIGN),
+                    .is_multiple_of(layout::AlignedWeights::ALIGN),
                 "length {len}: starts at {:p}",
                 slice.as_ptr()
             );
@@ -312,7 +310,7 @@ mod tests {
             isa,
             steps: vec![Step::Dense {
                 from: 0,
-                weights: plan::DenseWeights::from_rows(
+                weights: layout::DenseWeights::from_rows(
                     weights,
                     outputs,
                     inputs,
@@ -387,8 +385,9 @@ mod tests {
 
     #[test]
     fn dense_panels_are_as_wide_as_the_outputs_need_and_the_kernels_hold() {
-        let panel =
-            |outputs, max| plan::DenseWeights::from_rows(&vec![1.0; outputs * 4], outputs, 4, max);
+        let panel = |outputs, max| {
+            layout::DenseWeights::from_rows(&vec![1.0; outputs * 4], outputs, 4, max)
+        };
         assert_eq!(panel(3, 64).width(), 8);
         assert_eq!(panel(9, 64).width(), 16);
         assert_eq!(panel(128, 64).width(), 64);
@@ -405,7 +404,7 @@ mod tests {
                 .panels()
                 .as_ptr()
                 .addr()
-                .is_multiple_of(plan::AlignedWeights::ALIGN)
+                .is_multiple_of(layout::AlignedWeights::ALIGN)
         );
     }
 

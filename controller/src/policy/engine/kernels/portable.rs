@@ -1,59 +1,10 @@
-//! The engine's arithmetic, written once and compiled per instruction set ([`super::isa`]).
-//!
-//! Every kernel is `#[inline(always)]` and generic over how a product is added ([`MulAdd`]):
-//! inlined into a `#[target_feature]` function, the fixed-size inner loops over output
-//! channels become that set's vector instructions (4 lanes for SSE, 8 for AVX2), and with
-//! FMA one fused instruction per multiply-add. No kernel allocates: every buffer is the
-//! caller's, sized at load.
-//!
-//! Layouts: feature maps are NHWC (channels innermost, batch 1), so a pixel's output
-//! channels are one contiguous run that the vector registers hold; convolution weights are
-//! re-laid out at load as `[ky][kx][in][out]`, dense weights in column panels
-//! `[panel][in][width]` ([`DenseWeights`]).
+//! The portable kernels: plain loops, every one `#[inline(always)]` and generic over
+//! [`MulAdd`], so that each instruction set's `#[target_feature]` function compiles them with
+//! its own vector instructions. The x86 paths fall back to them where their own kernels do
+//! not fit a layer.
 
-/// How `a * b + c` is computed: fused (one rounding, the FMA instruction) or as a product
-/// and a sum.
-pub(crate) trait MulAdd {
-    fn mul_add(a: f32, b: f32, c: f32) -> f32;
-}
-
-/// One rounding: compiles to an FMA instruction where the target has one. Only used
-/// inside functions compiled with FMA enabled (elsewhere it would call the slow libm `fmaf`).
-#[derive(Debug)]
-pub(crate) struct Fused;
-
-impl MulAdd for Fused {
-    #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-        a.mul_add(b, c)
-    }
-}
-
-/// Product, then sum: two roundings, any target.
-#[derive(Debug)]
-pub(crate) struct Separate;
-
-impl MulAdd for Separate {
-    #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-        a * b + c
-    }
-}
-
-use super::plan::DenseWeights;
-
-/// The shape of one convolution on a zero-bordered NHWC input.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct ConvShape {
-    /// The padded input's width (its height is implied by the output), and channels.
-    pub padded_width: usize,
-    pub in_channels: usize,
-    pub out_channels: usize,
-    pub kernel: [usize; 2],
-    pub stride: [usize; 2],
-    /// Output height and width.
-    pub out: [usize; 2],
-}
+use super::MulAdd;
+use crate::policy::engine::layout::{ConvShape, DenseWeights};
 
 /// Convolution of a zero-bordered NHWC input (`padded`: `[rows][padded_width][in]`) with
 /// weights `[ky][kx][in][OC]`, plus bias, optionally clamped at zero, into NHWC `out`:

@@ -3,11 +3,11 @@
 //! so that the
 //! accumulators of a block of output pixels stay in registers. Left to itself the compiler
 //! splits fixed-size float arrays into scalars and vectorises only part of them back (the
-//! generic kernels in [`super::kernels`] ran at about a third of tract's speed for that
+//! generic kernels in [`super::portable`] ran at about a third of tract's speed for that
 //! reason); these are the engine's hot loops and are worth the `std::arch`.
 //!
 //! Every function here is `#[inline(always)]` and only ever inlined into the functions of
-//! `super::x86` compiled with the matching `#[target_feature]`; that is what makes the
+//! `crate::policy::engine::x86` compiled with the matching `#[target_feature]`; that is what makes the
 //! intrinsics sound to call.
 #![allow(unsafe_code)]
 
@@ -16,8 +16,8 @@ use std::arch::x86::*;
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
-use super::kernels::{ConvShape, nonzero_indices};
-use super::plan::DenseWeights;
+use super::portable::nonzero_indices;
+use crate::policy::engine::layout::{ConvShape, DenseWeights};
 
 /// A vector of `LANES` floats and the operations the kernels need.
 pub(crate) trait Vector: Copy {
@@ -85,7 +85,7 @@ pub(crate) struct Sse(__m128);
 
 // SAFETY (all `unsafe` blocks of this impl): SSE and SSE2 are the baseline of both x86
 // targets this crate builds for (x86-64, and i686 whose Rust target enables SSE2), and these
-// functions run inside `super::x86`'s functions compiled with at least SSE2; every load and
+// functions run inside `crate::policy::engine::x86`'s functions compiled with at least SSE2; every load and
 // store is checked to stay inside its slice first.
 impl Vector for Sse {
     const LANES: usize = 4;
@@ -455,7 +455,7 @@ impl Vector for Avx512 {
     }
 }
 
-/// Rows `first_row..` of [`super::kernels::conv`] (as many as `out` holds) over vectors:
+/// Rows `first_row..` of [`super::portable::conv`] (as many as `out` holds) over vectors:
 /// the output channels in groups of `VECS` vectors of `V`, `P` pixels per block, so that
 /// `P x VECS` accumulators, `VECS` weight vectors and the broadcast input fit the register
 /// file. `IC` and `KW` are the number of input channels and the kernel's width when known
@@ -702,7 +702,7 @@ unsafe fn conv_tap<V: Vector, const VECS: usize, const P: usize>(
     }
 }
 
-/// [`super::kernels::max_pool_nhwc`] over vectors; channels that are not a whole number
+/// [`super::portable::max_pool_nhwc`] over vectors; channels that are not a whole number
 /// of vectors go to that scalar version.
 #[inline(always)]
 pub(crate) fn max_pool<V: Vector>(
@@ -714,7 +714,7 @@ pub(crate) fn max_pool<V: Vector>(
     out: &mut [f32],
 ) {
     if c == 0 || !c.is_multiple_of(V::LANES) {
-        super::kernels::max_pool_nhwc(input, size, kernel, stride, [oh, ow], out);
+        super::portable::max_pool_nhwc(input, size, kernel, stride, [oh, ow], out);
         return;
     }
     if kernel == [2, 2] && stride == [2, 2] {

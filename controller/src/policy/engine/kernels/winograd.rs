@@ -39,7 +39,7 @@
 //! padded buffer must hold them; [`Layer::new`] checks, and the lowering gives the padded
 //! buffer the rows it lacks (they stay zero).
 
-use super::plan::AlignedWeights;
+use crate::policy::engine::layout::AlignedWeights;
 
 /// The transform points of F(2x2, 3x3): a 4x4 tile.
 pub(crate) const POINTS: usize = 16;
@@ -182,7 +182,7 @@ mod vector {
     #![allow(unsafe_code)]
 
     use super::{Layer, POINTS, SCRATCH_SLACK};
-    use crate::policy::engine::simd::Vector;
+    use crate::policy::engine::kernels::simd::Vector;
 
     /// `B^T d` along one dimension: four vectors into four.
     #[inline(always)]
@@ -627,7 +627,7 @@ mod vector_tests {
     use super::tests::values;
     use super::*;
     use crate::policy::engine::Isa;
-    use crate::policy::engine::simd::{Avx, Avx512, Sse, Vector};
+    use crate::policy::engine::kernels::simd::{Avx, Avx512, Sse, Vector};
 
     /// A layer's inputs and outputs: the padded input, direct weights, bias.
     struct Case {

@@ -1,0 +1,180 @@
+//! How the engine lays out what it computes on, at the bottom of the engine: buffers are
+//! named by index ([`BufferId`]), weights sit on 64-byte boundaries ([`AlignedWeights`]),
+//! dense weights in column panels ([`DenseWeights`]), a convolution is described by its
+//! [`ConvShape`] and an element-wise operand's broadcast or a transpose by [`Strided`]. It
+//! imports nothing of the engine: the kernels, the plan and the lowering all build on it.
+
+/// The shape of one convolution on a zero-bordered NHWC input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ConvShape {
+    /// The padded input's width (its height is implied by the output), and channels.
+    pub padded_width: usize,
+    pub in_channels: usize,
+    pub out_channels: usize,
+    pub kernel: [usize; 2],
+    pub stride: [usize; 2],
+    /// Output height and width.
+    pub out: [usize; 2],
+}
+
+pub(crate) type BufferId = usize;
+
+/// Weights whose first value sits on a 64-byte boundary. The vector kernels then read them
+/// with aligned loads, which SSE folds into its `mulps` as a memory operand (an unaligned
+/// one it cannot): no register is spent holding a weight vector, which on the V5's eight
+/// registers is what made the compiler spill accumulators to the stack.
+///
+/// Safe code: the values start at the first aligned index of an over-allocated `Vec`, and a
+/// `Vec`'s heap buffer stays where it is when the `Vec` moves.
+#[derive(Clone, PartialEq)]
+pub(crate) struct AlignedWeights {
+    /// The values, with `SLACK` spare floats around them.
+    storage: Vec<f32>,
+    start: usize,
+}
+
+impl AlignedWeights {
+    /// The boundary, in bytes: an AVX-512 register's width (and a cache line).
+    pub(crate) const ALIGN: usize = 64;
+    const SLACK: usize = Self::ALIGN / size_of::<f32>();
+
+    pub(crate) fn new(values: &[f32]) -> Self {
+        let mut storage = vec![0.0; values.len() + Self::SLACK];
+        // Below SLACK for a 4-byte-aligned buffer; should it ever say "cannot", the values
+        // start at 0 and the vector kernels, which check, leave the work to the generic ones.
+        let start = match storage.as_ptr().align_offset(Self::ALIGN) {
+            offset if offset < Self::SLACK => offset,
+            _ => 0,
+        };
+        storage[start..start + values.len()].copy_from_slice(values);
+        Self { storage, start }
+    }
+
+    pub(crate) fn as_slice(&self) -> &[f32] {
+        let len = self.storage.len() - Self::SLACK;
+        &self.storage[self.start..self.start + len]
+    }
+}
+
+impl core::fmt::Debug for AlignedWeights {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        self.as_slice().fmt(f)
+    }
+}
+
+/// A dense layer's weights in column panels, `[panel][input][width]`: `width` outputs per
+/// panel (a multiple of eight, the last panel padded with zero columns). The kernel keeps a
+/// panel's outputs in vector registers and walks the inputs once per panel, reading its
+/// weights as one contiguous stream; an input that is zero (most features after ReLU and
+/// max-pool are) is skipped together with its row of weights. The `[out][in]` layout needed
+/// every weight of the 2560x128 layer on every step, 1.3 MB, more than the Atoms' L2.
+#[derive(Clone, PartialEq)]
+pub(crate) struct DenseWeights {
+    panels: AlignedWeights,
+    inputs: usize,
+    outputs: usize,
+    width: usize,
+}
+
+impl DenseWeights {
+    /// From `rows` laid out `[out][in]` (`outputs` rows of `inputs`), `width` columns a
+    /// panel, at most `max_width` and no wider than the outputs need (rounded up to eight).
+    pub(crate) fn from_rows(rows: &[f32], outputs: usize, inputs: usize, max_width: usize) -> Self {
+        let mut width = 8;
+        while width < max_width && width < outputs {
+            width *= 2;
+        }
+        let panels = outputs.div_ceil(width);
+        let mut values = vec![0.0; panels * inputs * width];
+        for (o, row) in rows.chunks_exact(inputs).take(outputs).enumerate() {
+            let (panel, column) = (o / width, o % width);
+            for (i, &w) in row.iter().enumerate() {
+                values[(panel * inputs + i) * width + column] = w;
+            }
+        }
+        Self {
+            panels: AlignedWeights::new(&values),
+            inputs,
+            outputs,
+            width,
+        }
+    }
+
+    /// `[panel][input][width]`.
+    pub(crate) fn panels(&self) -> &[f32] {
+        self.panels.as_slice()
+    }
+
+    pub(crate) fn inputs(&self) -> usize {
+        self.inputs
+    }
+
+    pub(crate) fn outputs(&self) -> usize {
+        self.outputs
+    }
+
+    /// Outputs per panel: 8, 16, 32 or 64.
+    pub(crate) fn width(&self) -> usize {
+        self.width
+    }
+}
+
+impl core::fmt::Debug for DenseWeights {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "DenseWeights {{ {} -> {}, panels of {} }}",
+            self.inputs, self.outputs, self.width
+        )
+    }
+}
+
+/// The highest rank the element-wise steps index.
+pub(crate) const MAX_RANK: usize = 6;
+
+/// Walks a tensor of `shape` in row-major order and gives, for each element, an offset
+/// under other `strides` (a broadcast operand, a transposed source, a reduction target).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Strided {
+    rank: usize,
+    shape: [usize; MAX_RANK],
+    strides: [usize; MAX_RANK],
+}
+
+impl Strided {
+    /// `shape` and `strides` of equal length, at most [`MAX_RANK`] (checked when lowering).
+    pub(crate) fn new(shape: &[usize], strides: &[usize]) -> Self {
+        let rank = shape.len().min(MAX_RANK);
+        let mut s = Self {
+            rank,
+            shape: [1; MAX_RANK],
+            strides: [0; MAX_RANK],
+        };
+        s.shape[..rank].copy_from_slice(&shape[..rank]);
+        s.strides[..rank].copy_from_slice(&strides[..rank]);
+        s
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        self.shape[..self.rank].iter().product()
+    }
+
+    /// Calls `visit(element, offset)` for every element in row-major order.
+    #[inline(always)]
+    pub(crate) fn for_each(&self, mut visit: impl FnMut(usize, usize)) {
+        let mut index = [0usize; MAX_RANK];
+        let mut offset = 0;
+        for element in 0..self.len() {
+            visit(element, offset);
+            for d in (0..self.rank).rev() {
+                index[d] += 1;
+                offset += self.strides[d];
+                if index[d] < self.shape[d] {
+                    break;
+                }
+                offset -= self.strides[d] * self.shape[d];
+                index[d] = 0;
+            }
+        }
+    }
+}
