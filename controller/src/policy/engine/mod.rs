@@ -8,6 +8,11 @@
 //! an operator or shape the engine does not lower runs under tract, and the reason is kept
 //! for the controller to log at load.
 //!
+//! Layers, each importing only those below it: `layout` (buffers and weight layouts,
+//! importing nothing of the engine), `kernels` (the arithmetic per instruction set), `plan`
+//! (the steps and their run loop), `lower` (ONNX to a plan, one file per operator family)
+//! and this module (the public API and the per-instruction-set entry points).
+//!
 //! Why our own instead of a library: tract plans and allocates on every run (84 allocations,
 //! 932 KB per CNN step) and its maintainers do not aim at real-time use; the other Rust
 //! runtimes wrap C++ (onnxruntime) or need a GPU. B-Human met the same wall on the Nao and
