@@ -391,7 +391,12 @@ impl RobotSide {
                     CommandMonitor::open(domain, "soak-motion")
                         .context("cannot open the motion side")?,
                 );
-                self.ports = None;
+                // What the controller sent while the monitor was being opened (tens of ms)
+                // reached only the closing ports: read it before they go.
+                if let Some(mut closing) = self.ports.take() {
+                    drain_ports(&mut closing, watch, Some(plan), clock)
+                        .context("cannot read the controller's commands")?;
+                }
             }
             Action::ReopenPublisher => {
                 self.ports = Some(
@@ -624,6 +629,24 @@ fn read_commands(
             return Ok(());
         }
     }
+}
+
+/// Reads every command waiting in the camera ports' subscription, without waiting.
+fn drain_ports(
+    ports: &mut Iceoryx2SimulatorPorts,
+    watch: &mut CommandWatch,
+    mut plan: Option<&mut FaultPlan>,
+    clock: &MonotonicClock,
+) -> Result<(), dribble_controller::transport::TransportError> {
+    while let Some(command) = ports.next_command(Duration::ZERO)? {
+        let now = clock.now();
+        if watch.take(command, now)
+            && let Some(plan) = plan.as_deref_mut()
+        {
+            plan.on_command(&command, now);
+        }
+    }
+    Ok(())
 }
 
 /// Reads every command waiting in `monitor`.
