@@ -15,6 +15,7 @@ mod render_command;
 mod score_command;
 mod soak_command;
 mod soak_faults;
+mod soak_motion_side;
 mod thumbnail_command;
 mod trajectory_file;
 mod trajectory_plot;

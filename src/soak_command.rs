@@ -23,11 +23,12 @@ use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::realtime::{self, RealtimeRequest};
 use dribble_controller::test_pattern::{PatternCameras, TestPattern};
 use dribble_controller::transport::SimulatorPorts;
-use dribble_controller::transport::ipc::{CommandMonitor, Domain, Iceoryx2SimulatorPorts};
+use dribble_controller::transport::ipc::{Domain, Iceoryx2SimulatorPorts};
 use dribble_controller::{Clock, LoopConfig, MonotonicClock, MotionCommand, SyncConfig, Timestamp};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::soak_faults::{Action, FaultPlan, FaultReport};
+use crate::soak_motion_side::MotionSide;
 use serde_json::json;
 
 #[derive(Debug, Args)]
@@ -362,53 +363,25 @@ fn apply_realtime(controller_priority: u8) {
     }
 }
 
-/// The camera driver's and the motion module's side of the soak: the camera publisher (which
-/// a fault closes and reopens), the motion side's bridge across that restart, and the cameras'
-/// schedule.
-struct RobotSide {
+/// The camera driver's side of the soak: the camera publisher (which a fault closes and
+/// reopens) and the cameras' schedule. The motion module reads the commands on a thread of
+/// its own ([`MotionSide`]).
+struct CameraSide {
     ports: Option<Iceoryx2SimulatorPorts>,
-    /// While the camera publisher is away the motion side reads on (on the robot they are
-    /// different processes): a monitor of its own bridges the restart, so a command the
-    /// controller sends meanwhile is counted, and a lost one is a gap.
-    motion_side: Option<CommandMonitor>,
     cameras: PatternCameras,
 }
 
-impl RobotSide {
+impl CameraSide {
     /// Does what a fault asks of the publisher.
-    fn act(
-        &mut self,
-        action: Action,
-        domain: &Domain,
-        watch: &mut CommandWatch,
-        plan: &mut FaultPlan,
-        clock: &MonotonicClock,
-    ) -> anyhow::Result<()> {
+    fn act(&mut self, action: Action, domain: &Domain) -> anyhow::Result<()> {
         match action {
             Action::None => {}
-            Action::ClosePublisher => {
-                self.motion_side = Some(
-                    CommandMonitor::open(domain, "soak-motion")
-                        .context("cannot open the motion side")?,
-                );
-                // What the controller sent while the monitor was being opened (tens of ms)
-                // reached only the closing ports: read it before they go.
-                if let Some(mut closing) = self.ports.take() {
-                    drain_ports(&mut closing, watch, Some(plan), clock)
-                        .context("cannot read the controller's commands")?;
-                }
-            }
+            Action::ClosePublisher => self.ports = None,
             Action::ReopenPublisher => {
                 self.ports = Some(
                     Iceoryx2SimulatorPorts::open(domain, "soak-cameras")
                         .context("cannot reopen the cameras")?,
                 );
-                // What arrived before the new subscriber existed; the overlap is counted
-                // once (`CommandWatch::take`).
-                if let Some(mut monitor) = self.motion_side.take() {
-                    drain_monitor(&mut monitor, watch, Some(plan), clock)
-                        .context("cannot read the controller's commands")?;
-                }
                 // A new publisher numbers its frames from 0.
                 self.cameras.restart_numbering();
             }
@@ -416,28 +389,15 @@ impl RobotSide {
         Ok(())
     }
 
-    /// Publishes the frames due at `now` (painted in any case; sent while `publish`).
-    /// Reads the controller's commands until `until`: through the camera ports while they are
-    /// open, else through the motion side's monitor.
-    fn read_until(
-        &mut self,
-        watch: &mut CommandWatch,
-        plan: Option<&mut FaultPlan>,
-        clock: &MonotonicClock,
-        until: Timestamp,
-    ) -> anyhow::Result<()> {
-        match (self.ports.as_mut(), self.motion_side.as_mut()) {
-            (Some(open), _) => read_commands(open, watch, plan, clock, until),
-            (None, Some(monitor)) => {
-                std::thread::sleep(Duration::from_micros(200));
-                drain_monitor(monitor, watch, plan, clock)
-            }
-            (None, None) => {
-                std::thread::sleep(Duration::from_micros(200));
-                Ok(())
-            }
+    /// Empties the camera ports' own command subscription, which the soak does not count
+    /// (the motion side does), so that its events do not pile up.
+    fn discard_commands(&mut self) -> anyhow::Result<()> {
+        if let Some(ports) = self.ports.as_mut() {
+            ports
+                .discard_commands()
+                .context("cannot read the controller's commands")?;
         }
-        .context("cannot read the controller's commands")
+        Ok(())
     }
 
     fn publish_due(&mut self, now: Timestamp, publish: bool) -> anyhow::Result<()> {
@@ -486,6 +446,8 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         log.display()
     );
     apply_realtime(args.priority);
+    // Started after the real-time settings, so that its thread inherits them.
+    let mut motion = MotionSide::start(&domain)?;
 
     let config = LoopConfig::default();
     let clock = MonotonicClock;
@@ -506,9 +468,8 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    let mut side = RobotSide {
+    let mut side = CameraSide {
         ports: Some(ports),
-        motion_side: None,
         cameras: PatternCameras::new(
             TestPattern::default(),
             SyncConfig::default().camera_period,
@@ -526,7 +487,7 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
                 Ok(action) => action,
                 Err(error) => break Err(error).context("a fault could not be injected"),
             };
-            if let Err(error) = side.act(action, &domain, &mut watch, plan, &clock) {
+            if let Err(error) = side.act(action, &domain) {
                 break Err(error);
             }
             publish = plan.cameras_publish(now);
@@ -544,13 +505,17 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
                 "the controller exited ({status}) during the soak"
             ));
         }
-        // Commands until the next event, in waits of at most 1 ms.
+        if let Err(error) = side.discard_commands() {
+            break Err(error);
+        }
+        // Commands until the next event.
         let next_event = side.cameras.next_due().min(seconds.next);
-        if let Err(error) = side.read_until(&mut watch, plan.as_mut(), &clock, next_event) {
+        if let Err(error) = read_until(&mut motion, &mut watch, plan.as_mut(), next_event) {
             break Err(error);
         }
     };
     seconds.progress.finish_and_clear();
+    drop(motion);
     drop(controller);
     outcome?;
     let faults = plan.map(|mut plan| {
@@ -607,61 +572,18 @@ impl SecondLog {
     }
 }
 
-/// Reads every command that arrives until `until`.
-fn read_commands(
-    ports: &mut Iceoryx2SimulatorPorts,
+/// Takes every command the motion side receives until `until`.
+fn read_until(
+    motion: &mut MotionSide,
     watch: &mut CommandWatch,
     mut plan: Option<&mut FaultPlan>,
-    clock: &MonotonicClock,
     until: Timestamp,
-) -> Result<(), dribble_controller::transport::TransportError> {
-    loop {
-        let left = until.saturating_since(clock.now());
-        if let Some(command) = ports.next_command(left.min(Duration::from_millis(1)))? {
-            let now = clock.now();
-            if watch.take(command, now)
-                && let Some(plan) = plan.as_deref_mut()
-            {
-                plan.on_command(&command, now);
-            }
-        }
-        if clock.now() >= until {
-            return Ok(());
-        }
-    }
-}
-
-/// Reads every command waiting in the camera ports' subscription, without waiting.
-fn drain_ports(
-    ports: &mut Iceoryx2SimulatorPorts,
-    watch: &mut CommandWatch,
-    mut plan: Option<&mut FaultPlan>,
-    clock: &MonotonicClock,
-) -> Result<(), dribble_controller::transport::TransportError> {
-    while let Some(command) = ports.next_command(Duration::ZERO)? {
-        let now = clock.now();
-        if watch.take(command, now)
+) -> anyhow::Result<()> {
+    while let Some((command, arrived)) = motion.next_before(until)? {
+        if watch.take(command, arrived)
             && let Some(plan) = plan.as_deref_mut()
         {
-            plan.on_command(&command, now);
-        }
-    }
-    Ok(())
-}
-
-/// Reads every command waiting in `monitor`.
-fn drain_monitor(
-    monitor: &mut CommandMonitor,
-    watch: &mut CommandWatch,
-    mut plan: Option<&mut FaultPlan>,
-    clock: &MonotonicClock,
-) -> Result<(), dribble_controller::transport::TransportError> {
-    while let Some(command) = monitor.try_next()? {
-        let now = clock.now();
-        if watch.take(command, now)
-            && let Some(plan) = plan.as_deref_mut()
-        {
-            plan.on_command(&command, now);
+            plan.on_command(&command, arrived);
         }
     }
     Ok(())

@@ -594,20 +594,36 @@ pub struct CommandMonitor {
     /// Held, never used: while it lives, the monitor is alive in the domain.
     _node: Node<Ipc>,
     commands: Subscriber<Ipc, MotionCommand, ()>,
+    command_events: Listener<Ipc>,
 }
 
 impl CommandMonitor {
     pub fn open(domain: &Domain, node_name: &str) -> Result<Self, TransportError> {
         let (node, _) = domain.create_node(node_name)?;
         let service = open_pubsub::<MotionCommand>(&node, COMMAND_SERVICE, &COMMAND_QOS)?;
+        let events = open_event(&node, COMMAND_SERVICE)?;
         Ok(Self {
             commands: subscriber(&service, COMMAND_SERVICE)?,
+            command_events: listener(&events, COMMAND_SERVICE)?,
             _node: node,
         })
     }
 
     /// The next command in order, if one is waiting.
     pub fn try_next(&mut self) -> Result<Option<MotionCommand>, TransportError> {
+        next_message(&self.commands)
+    }
+
+    /// The next command in order, waiting at most `timeout` for the controller to send one.
+    pub fn next(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
+        if let Some(command) = next_message(&self.commands)? {
+            return Ok(Some(command));
+        }
+        wait_for_event(
+            &self.command_events,
+            timeout,
+            "waiting for a command failed",
+        )?;
         next_message(&self.commands)
     }
 }
