@@ -242,10 +242,11 @@ fn load_policy(manifest: Option<&Path>, options: EngineOptions) -> anyhow::Resul
 fn load_learned_policy(manifest: &Path, options: EngineOptions) -> anyhow::Result<OnnxPolicy> {
     let (policy, manifest) = OnnxPolicy::load_with(manifest, options)?;
     println!(
-        "policy: {} from {} ({} network file(s), trained on {:?}), engine {}",
+        "policy: {} from {} ({} network file(s), {}, trained on {:?}), engine {}",
         manifest.kind,
         manifest.directory.display(),
         manifest.networks.len(),
+        manifest.precision,
         manifest.training.dataset,
         policy.engine()
     );

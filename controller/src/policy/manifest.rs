@@ -42,6 +42,57 @@ impl fmt::Display for PolicyKind {
     }
 }
 
+/// The number format the networks compute in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// 32-bit floats throughout (every manifest before `precision` existed).
+    #[default]
+    Fp32,
+    /// Hidden layers in 8-bit integers: the files are QDQ ONNX (`QuantizeLinear` and
+    /// `DequantizeLinear` pairs around them), made by `dribble_models.quantize`; output
+    /// layers and the LSTM stay in floats.
+    Int8,
+}
+
+impl fmt::Display for Precision {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Fp32 => "fp32",
+            Self::Int8 => "int8",
+        })
+    }
+}
+
+/// How an int8 policy was made from its float one: the record a reader (or a test) needs to
+/// redo it and to know it never saw a test episode.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Quantization {
+    pub method: String,
+    /// Bits of the int8 weights' range actually used (7: -64..64, so that SSSE3's
+    /// `pmaddubsw` cannot saturate).
+    pub weight_bits: u32,
+    pub onnxruntime_version: String,
+    /// sha256 of each float network it was made from, in `networks` order.
+    pub float_networks_sha256: Vec<String>,
+    /// Content hash of the dataset the calibration frames came from (the training one).
+    pub calibration_dataset_hash: String,
+    pub calibration_frames: u32,
+    pub calibration_seed: u64,
+    /// sha256 of the list of (episode seed, row) pairs that calibrated it.
+    pub calibration_rows_sha256: String,
+    /// Per network file, the scale of each quantized activation tensor.
+    pub networks: Vec<QuantizedNetwork>,
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuantizedNetwork {
+    pub network: String,
+    pub activation_scales: std::collections::BTreeMap<String, f32>,
+}
+
 /// A named tensor and its shape.
 #[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -163,6 +214,11 @@ pub struct PolicyManifest {
     pub opset: i64,
     /// ONNX files, relative to the manifest's directory; one per H-CNN cluster.
     pub networks: Vec<String>,
+    /// fp32 when absent.
+    #[serde(default)]
+    pub precision: Precision,
+    /// Present exactly when `precision` is int8.
+    pub quantization: Option<Quantization>,
     pub normalisation: Normalisation,
     pub inputs: Inputs,
     pub outputs: Outputs,
@@ -245,6 +301,7 @@ impl PolicyManifest {
                 ));
             }
         }
+        self.check_quantization()?;
         let networks = self.networks.len();
         match self.kind {
             PolicyKind::Cnn | PolicyKind::Rcnn if networks != 1 => {
@@ -283,6 +340,51 @@ impl PolicyManifest {
                 }
             }
             PolicyKind::Cnn => {}
+        }
+        Ok(())
+    }
+}
+
+impl PolicyManifest {
+    fn check_quantization(&self) -> Result<(), String> {
+        let record = match (self.precision, &self.quantization) {
+            (Precision::Fp32, None) => return Ok(()),
+            (Precision::Fp32, Some(_)) => {
+                return Err("a [quantization] table belongs to precision = \"int8\" only".into());
+            }
+            (Precision::Int8, None) => {
+                return Err("precision = \"int8\" needs the [quantization] table that made it".into());
+            }
+            (Precision::Int8, Some(record)) => record,
+        };
+        if !(2..=8).contains(&record.weight_bits) {
+            return Err(format!(
+                "quantization.weight_bits must be from 2 to 8, found {}",
+                record.weight_bits
+            ));
+        }
+        let named: Vec<&str> = record.networks.iter().map(|n| n.network.as_str()).collect();
+        if named != self.networks.iter().map(String::as_str).collect::<Vec<_>>()
+            || record.float_networks_sha256.len() != self.networks.len()
+        {
+            return Err(format!(
+                "quantization.networks ({named:?}) and float_networks_sha256 ({} of them) must \
+                 follow networks ({:?})",
+                record.float_networks_sha256.len(),
+                self.networks
+            ));
+        }
+        for network in &record.networks {
+            if let Some((tensor, scale)) = network
+                .activation_scales
+                .iter()
+                .find(|(_, scale)| !(scale.is_finite() && **scale > 0.0))
+            {
+                return Err(format!(
+                    "quantization: the scale of {tensor:?} in {} must be positive, found {scale}",
+                    network.network
+                ));
+            }
         }
         Ok(())
     }
@@ -339,6 +441,55 @@ test_error = 0.16
         );
         assert_eq!(manifest.training.test_error, Some(0.16));
         assert_eq!(manifest.command_scale.walk_limits(), WalkLimits::default());
+    }
+
+    const QUANTIZATION: &str = r#"
+[quantization]
+method = "onnxruntime quantize_static, QDQ"
+weight_bits = 7
+onnxruntime_version = "1.32.0"
+float_networks_sha256 = ["d4a2"]
+calibration_dataset_hash = "9b6e"
+calibration_frames = 256
+calibration_seed = 0
+calibration_rows_sha256 = "a60f"
+[[quantization.networks]]
+network = "policy.onnx"
+activation_scales = { "top" = 0.0039, "/features/Concat_output_0" = 0.0052 }
+"#;
+
+    #[test]
+    fn precision_is_fp32_unless_the_manifest_says_int8_with_its_record() {
+        assert_eq!(parse(CNN).expect("fp32").precision, Precision::Fp32);
+        let int8 = CNN.replace(
+            "networks = [\"policy.onnx\"]",
+            "networks = [\"policy.onnx\"]\nprecision = \"int8\"",
+        );
+        let manifest = parse(&format!("{int8}{QUANTIZATION}")).expect("int8");
+        assert_eq!(manifest.precision, Precision::Int8);
+        let record = manifest.quantization.expect("record");
+        assert_eq!(record.networks[0].activation_scales["top"], 0.0039);
+        assert_eq!(record.calibration_frames, 256);
+
+        let error = parse(&int8).expect_err("int8 without its record");
+        assert!(error.contains("needs the [quantization] table"), "{error}");
+        let error = parse(&format!("{CNN}{QUANTIZATION}")).expect_err("a record on fp32");
+        assert!(error.contains("belongs to precision"), "{error}");
+        let error = parse(&format!("{int8}{}", QUANTIZATION.replace("0.0039", "-1.0")))
+            .expect_err("negative scale");
+        assert!(error.contains("\"top\" in policy.onnx must be positive"), "{error}");
+        let error = parse(&format!(
+            "{int8}{}",
+            QUANTIZATION.replace("network = \"policy.onnx\"", "network = \"other.onnx\"")
+        ))
+        .expect_err("another network");
+        assert!(error.contains("must follow networks"), "{error}");
+        let error = parse(&CNN.replace(
+            "networks = [\"policy.onnx\"]",
+            "networks = [\"policy.onnx\"]\nprecision = \"int4\"",
+        ))
+        .expect_err("unknown precision");
+        assert!(error.contains("int4"), "{error}");
     }
 
     #[test]

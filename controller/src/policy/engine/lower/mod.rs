@@ -168,6 +168,18 @@ pub(crate) fn lower(
         dense_width,
         winograd_lanes,
     };
+    // An int8 policy's files (DESIGN.md, "Policies": precision) are QDQ graphs: said plainly
+    // rather than by the first integer initialiser the lowering would trip over.
+    if let Some(node) = graph
+        .node
+        .iter()
+        .find(|n| matches!(n.op_type.as_str(), "QuantizeLinear" | "DequantizeLinear"))
+    {
+        return unsupported(format!(
+            "{} ({}): a quantized (QDQ) graph; the compiled engine lowers float graphs",
+            node.op_type, node.name
+        ));
+    }
     for node in &graph.node {
         for input in node.input.iter().filter(|i| !i.is_empty()) {
             *lowerer.readers.entry(input.clone()).or_default() += 1;

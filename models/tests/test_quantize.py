@@ -1,0 +1,112 @@
+"""Post-training int8 quantization: calibrated on training rows only, 7-bit weights, hidden
+layers only, a manifest the controller reads, and an int8 network that answers close to the
+float one (onnxruntime runs both)."""
+
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import tomllib
+
+from dribble_models import contract
+from dribble_models.export import export_policy
+from dribble_models.manifest import TrainingRecord
+from dribble_models.networks import CNN, RCNN
+from dribble_models.quantize import QuantizeError, calibration_rows, hidden_layers, main, quantize_policy
+from dribble_models import dataset as ds
+
+from test_dataset import dribble_binary
+from test_train import write_dataset
+
+
+def float_policy(tmp_path: Path, model, train: Path) -> Path:
+    record = TrainingRecord(dataset="train", epochs=0, dataset_hash=ds.load(train).content_hash, validation_seeds=[3])
+    directory = tmp_path / "float"
+    export_policy(model.eval(), directory, record)
+    return directory
+
+
+def feeds(rng, count):
+    scale = np.float32(contract.INPUT_SCALE)
+    for _ in range(count):
+        yield {
+            "top": rng.integers(0, 256, (1, 1, 120, 160)).astype(np.float32) * scale,
+            "bottom": rng.integers(0, 256, (1, 1, 60, 80)).astype(np.float32) * scale,
+        }
+
+
+def test_calibration_rows_leave_out_validation_seeds_and_follow_the_seed(tmp_path, rng):
+    train = ds.load(write_dataset(tmp_path / "train", [1, 2, 3], 10, rng))
+    rows = calibration_rows(train, 12, seed=5, exclude_seeds={3})
+    assert len(rows) == 12 and {s for s, _ in rows} <= {1, 2}
+    assert rows == calibration_rows(train, 12, seed=5, exclude_seeds={3})
+    assert rows != calibration_rows(train, 12, seed=6, exclude_seeds={3})
+
+
+def test_a_cnn_quantizes_its_hidden_layers_in_7_bits_and_answers_near_the_float(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3], 20, rng)
+    policy = float_policy(tmp_path, CNN(), train)
+    out = tmp_path / "int8"
+    record = quantize_policy(policy, train, out, frames=32, seed=0)
+
+    model = onnx.load(str(out / "policy.onnx"))
+    assert len(hidden_layers(onnx.load(str(policy / "policy.onnx")))) == 5  # 4 convolutions, 1 hidden dense
+    weights = [i for i in model.graph.initializer if i.data_type == onnx.TensorProto.INT8 and i.dims and len(i.dims) > 1]
+    assert len(weights) == 5
+    assert all(np.abs(onnx.numpy_helper.to_array(w)).max() <= 64 for w in weights)
+    # The command's own layer stays float: its weights are not an int8 initialiser.
+    assert not any(i.name.startswith("head.2.weight") and i.data_type == onnx.TensorProto.INT8 for i in model.graph.initializer)
+
+    manifest = tomllib.loads((out / "policy.toml").read_text())
+    assert manifest["precision"] == "int8"
+    assert manifest["quantization"]["calibration_frames"] == 32
+    assert manifest["quantization"]["networks"][0]["activation_scales"] == pytest.approx(record["activation_scales"][0])
+
+    float_run = ort.InferenceSession(str(policy / "policy.onnx"), providers=["CPUExecutionProvider"])
+    int8_run = ort.InferenceSession(str(out / "policy.onnx"), providers=["CPUExecutionProvider"])
+    worst = 0.0
+    for feed in feeds(rng, 8):
+        (a,) = float_run.run(None, feed)
+        (b,) = int8_run.run(None, feed)
+        worst = max(worst, float(np.abs(a - b).max()))
+    print(f"int8 vs float: max |difference| {worst:.4f}")
+    # An untrained network's outputs are about 0.1; int8 keeps them within a few percent.
+    assert 0 < worst < 0.02
+
+
+def test_the_rcnn_keeps_its_lstm_in_floats(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
+    policy = float_policy(tmp_path, RCNN(), train)
+    quantize_policy(policy, train, tmp_path / "int8", frames=8, seed=0)
+    model = onnx.load(str(tmp_path / "int8" / "policy.onnx"))
+    lstm = [n for n in model.graph.node if n.op_type == "LSTM"]
+    assert lstm and all(not name.endswith("DequantizeLinear_Output") for name in lstm[0].input[1:3])
+
+
+def test_calibrating_on_another_dataset_is_refused(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2], 5, rng)
+    other = write_dataset(tmp_path / "other", [10000], 5, rng)
+    policy = float_policy(tmp_path, CNN(), train)
+    with pytest.raises(QuantizeError, match="is not the dataset"):
+        quantize_policy(policy, other, tmp_path / "int8")
+    assert main(["--policy", str(policy), "--dataset", str(other), "--out", str(tmp_path / "x")]) == 2
+
+
+def test_the_controller_reads_the_int8_manifest(tmp_path, rng):
+    binary = dribble_binary()
+    train = write_dataset(tmp_path / "train", [1, 2], 8, rng)
+    out = tmp_path / "int8"
+    quantize_policy(float_policy(tmp_path, CNN(), train), train, out, frames=8)
+    controller = Path(binary).with_name("dribble-controller")
+    said = subprocess.run(
+        [str(controller), "forward", "--no-peak", "--steps", "2", "--policy", str(out / "policy.toml")],
+        capture_output=True,
+        text=True,
+        env=os.environ | {"RUST_LOG": "warn"},
+    )
+    assert said.returncode == 0, said.stderr
+    assert "int8" in said.stdout and "2 forward pass(es)" in said.stdout
