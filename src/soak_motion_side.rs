@@ -109,10 +109,10 @@ fn read(
     stop: &AtomicBool,
 ) -> Result<(), TransportError> {
     while !stop.load(Ordering::Relaxed) {
-        if let Some(command) = monitor.next(STOP_CHECK)? {
-            if arrivals.send((command, MonotonicClock.now())).is_err() {
-                return Ok(());
-            }
+        if let Some(command) = monitor.next(STOP_CHECK)?
+            && arrivals.send((command, MonotonicClock.now())).is_err()
+        {
+            return Ok(());
         }
     }
     Ok(())
