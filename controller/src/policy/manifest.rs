@@ -353,7 +353,9 @@ impl PolicyManifest {
                 return Err("a [quantization] table belongs to precision = \"int8\" only".into());
             }
             (Precision::Int8, None) => {
-                return Err("precision = \"int8\" needs the [quantization] table that made it".into());
+                return Err(
+                    "precision = \"int8\" needs the [quantization] table that made it".into(),
+                );
             }
             (Precision::Int8, Some(record)) => record,
         };
@@ -477,7 +479,10 @@ activation_scales = { "top" = 0.0039, "/features/Concat_output_0" = 0.0052 }
         assert!(error.contains("belongs to precision"), "{error}");
         let error = parse(&format!("{int8}{}", QUANTIZATION.replace("0.0039", "-1.0")))
             .expect_err("negative scale");
-        assert!(error.contains("\"top\" in policy.onnx must be positive"), "{error}");
+        assert!(
+            error.contains("\"top\" in policy.onnx must be positive"),
+            "{error}"
+        );
         let error = parse(&format!(
             "{int8}{}",
             QUANTIZATION.replace("network = \"policy.onnx\"", "network = \"other.onnx\"")

@@ -16,6 +16,7 @@
 //! re-laid out at load as `[ky][kx][in][out]`, dense weights in column panels
 //! `[panel][in][width]` ([`DenseWeights`](super::layout::DenseWeights)).
 
+pub(crate) mod int8;
 pub(crate) mod portable;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 pub(crate) mod simd;
