@@ -18,7 +18,9 @@ use std::process::Command;
 
 use criterion::Criterion;
 use dribble_controller::policy::engine::Isa;
-use dribble_controller::policy::engine::peak::multiply_adds_per_second;
+use dribble_controller::policy::engine::peak::{
+    int8_multiply_adds_per_second, multiply_adds_per_second,
+};
 use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::test_pattern::TestPattern;
 use dribble_controller::thumbnail::downscale;
@@ -78,10 +80,22 @@ fn policies(c: &mut Criterion) {
     for (label, engine, isa) in engines() {
         let mut group = c.benchmark_group(format!("policy step/{label}"));
         let peak = isa.and_then(multiply_adds_per_second);
-        for (name, kind) in [("CNN", "cnn"), ("H-CNN", "hcnn"), ("R-CNN", "rcnn")] {
+        let int8_peak = isa.and_then(int8_multiply_adds_per_second);
+        for (name, kind) in [
+            ("CNN", "cnn"),
+            ("CNN int8", "cnn-int8"),
+            ("H-CNN", "hcnn"),
+            ("R-CNN", "rcnn"),
+        ] {
             let mut policy = load(kind, engine, isa);
             // The floor no kernel goes below: this step's multiply-adds at this core's
             // measured peak for the set (compare with criterion's figure below it).
+            // An int8 plan's floor is at the int8 peak.
+            let peak = if policy.engine().int8 {
+                int8_peak
+            } else {
+                peak
+            };
             if let (Some(peak), Some(multiply_adds)) = (peak, policy.engine().multiply_adds) {
                 println!(
                     "policy step/{label}/{name}: {:.2} M multiply-adds, at least {:.1} µs at \

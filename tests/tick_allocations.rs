@@ -1,5 +1,5 @@
 //! The controller tick allocates nothing after start-up, with the test policy and with a
-//! real ONNX policy of each kind on the compiled engine, on every instruction set this CPU
+//! real ONNX policy of each kind on the compiled engine (the CNN also in int8), on every instruction set this CPU
 //! runs (the SSE paths the robots take, with and without Winograd, included), with the
 //! once-a-second check of the policy files inside the counted ticks.
 //!
@@ -179,6 +179,7 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
     let shipped = format!("policy/{}", shipped.trim());
     for name in [
         "fixtures/cnn",
+        "fixtures/cnn-int8",
         "fixtures/hcnn",
         "fixtures/rcnn",
         "policy/cnn-modal",
@@ -195,6 +196,12 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
             let engine = policy.engine().to_string();
             assert!(
                 engine.starts_with(&format!("compiled ({isa}")),
+                "{name}: {engine}"
+            );
+            // The int8 policy on its integer kernels, not its network's float reading.
+            assert_eq!(
+                policy.engine().int8,
+                name.ends_with("int8"),
                 "{name}: {engine}"
             );
             // The controller polls the policy files about once a second (every 100 ticks

@@ -7,7 +7,9 @@ use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use dribble_controller::log_output::{self, LogFormat};
 use dribble_controller::policy::engine::Isa;
-use dribble_controller::policy::engine::peak::multiply_adds_per_second;
+use dribble_controller::policy::engine::peak::{
+    int8_multiply_adds_per_second, multiply_adds_per_second,
+};
 use dribble_controller::policy::file_watch::PolicyFileWatch;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
@@ -375,11 +377,19 @@ fn forward(
     downscale(&top_frame, &mut top);
     downscale(&bottom_frame, &mut bottom);
     // Measured before the passes, on an idle core (see `peak`).
+    // An int8 plan against the int8 peak (its few float multiply-adds are thousandths).
+    let int8 = policy.engine().int8;
     let peak = policy
         .engine()
         .compiled
         .filter(|_| measure_peak)
-        .and_then(multiply_adds_per_second);
+        .and_then(|isa| {
+            if int8 {
+                int8_multiply_adds_per_second(isa)
+            } else {
+                multiply_adds_per_second(isa)
+            }
+        });
     let mut last = None;
     let mut times = TickStats::new(budget);
     for _ in 0..steps {
@@ -403,9 +413,10 @@ fn forward(
     {
         let bound = Duration::from_secs_f64(multiply_adds as f64 / peak);
         println!(
-            "{:.2} M multiply-adds a pass; this core's measured {isa} peak, {:.1} G a second, \
+            "{:.2} M multiply-adds a pass; this core's measured {isa}{} peak, {:.1} G a second, \
              bounds a pass at {bound:.1?}: the fastest pass ran at {:.0} % of it",
             multiply_adds as f64 / 1e6,
+            if int8 { " int8" } else { "" },
             peak / 1e9,
             100.0 * bound.as_secs_f64() / summary.min.as_secs_f64(),
         );

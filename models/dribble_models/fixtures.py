@@ -126,6 +126,53 @@ def write_rcnn(out: Path, rng: np.random.Generator) -> None:
     write_reference(out / "rcnn", tops, bottoms, commands[0].numpy())
 
 
+CNN_INT8_CALIBRATION = 48
+CNN_INT8_REFERENCE_STEPS = 4
+
+
+def write_cnn_int8(out: Path, rng: np.random.Generator) -> None:
+    """The fixture CNN quantized to int8 (QDQ) by `dribble_models.quantize`, calibrated on
+    synthetic frames (a fixture has no training episodes), with its own reference: what
+    onnxruntime computes from the int8 file on the CNN fixture's reference thumbnails."""
+    import hashlib
+
+    import onnxruntime as ort
+
+    from .quantize import write_int8_policy
+
+    tops, bottoms = synthetic_pairs(rng, CNN_INT8_CALIBRATION)
+    scale = np.float32(contract.INPUT_SCALE)
+    feeds = [
+        {contract.TOP_INPUT: t[None, None].astype(np.float32) * scale, contract.BOTTOM_INPUT: b[None, None].astype(np.float32) * scale}
+        for t, b in zip(tops, bottoms)
+    ]
+    rows = [(0, i) for i in range(len(feeds))]
+    calibration = {
+        "calibration_dataset_hash": hashlib.sha256(tops.tobytes() + bottoms.tobytes()).hexdigest(),
+        "calibration_frames": len(rows),
+        "calibration_seed": SEED,
+        "calibration_rows_sha256": hashlib.sha256(str(rows).encode()).hexdigest(),
+    }
+    write_int8_policy(out / "cnn", out / "cnn-int8", [feeds], calibration)
+    reference = np.fromfile(out / "cnn" / "reference" / "thumbnails.u8", np.uint8)
+    top_size, bottom_size = np.prod(contract.TOP_SHAPE), np.prod(contract.BOTTOM_SHAPE)
+    steps = reference.reshape(-1, top_size + bottom_size)
+    steps = steps[:CNN_INT8_REFERENCE_STEPS]
+    ref_tops = steps[:, :top_size].reshape(-1, *contract.TOP_SHAPE)
+    ref_bottoms = steps[:, top_size:].reshape(-1, *contract.BOTTOM_SHAPE)
+    session = ort.InferenceSession(str(out / "cnn-int8" / "policy.onnx"), providers=["CPUExecutionProvider"])
+    commands = np.stack(
+        [
+            session.run(
+                [contract.COMMAND_OUTPUT],
+                {contract.TOP_INPUT: t[None, None].astype(np.float32) * scale, contract.BOTTOM_INPUT: b[None, None].astype(np.float32) * scale},
+            )[0][0]
+            for t, b in zip(ref_tops, ref_bottoms)
+        ]
+    )
+    write_reference(out / "cnn-int8", ref_tops, ref_bottoms, commands)
+
+
 def write_nan(out: Path) -> None:
     """A model with the CNN's inputs and output that answers NaN for forward: built node by
     node, a few hundred bytes."""
@@ -159,6 +206,8 @@ def main() -> None:
     write_hcnn(args.out, rng)
     write_rcnn(args.out, rng)
     write_nan(args.out)
+    # Its own generator, so that the other fixtures stay what they were before it existed.
+    write_cnn_int8(args.out, np.random.default_rng(SEED + 8))
     for path in sorted(args.out.rglob("*")):
         if path.is_file():
             print(f"{path.stat().st_size:>9}  {path.relative_to(args.out)}")

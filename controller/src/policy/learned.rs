@@ -78,11 +78,15 @@ pub struct EngineReport {
     /// rounds differently from the direct sum (named in the report: a closed loop's goal
     /// count belongs to the arithmetic that measured it).
     pub winograd: bool,
+    /// Whether the compiled engine runs int8 steps (an int8 policy's QDQ network lowered to
+    /// integer kernels): its multiply-adds are then mostly 8-bit ones.
+    pub int8: bool,
 }
 
 impl std::fmt::Display for EngineReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match (&self.compiled, &self.fallback) {
+            (Some(isa), _) if self.int8 => write!(f, "compiled ({isa}, int8)"),
             (Some(isa), _) if self.winograd => write!(f, "compiled ({isa}, winograd)"),
             (Some(isa), _) => write!(f, "compiled ({isa})"),
             (None, Some(why)) => write!(f, "tract (the compiled engine cannot run it: {why})"),
@@ -251,6 +255,7 @@ impl Network {
                         fallback: None,
                         multiply_adds: Some(compiled.multiply_adds()),
                         winograd: compiled.winograd_layers() > 0,
+                        int8: compiled.int8_steps() > 0,
                     };
                     let network = Self::Compiled {
                         network: Box::new(compiled),
@@ -290,6 +295,7 @@ impl Network {
                 fallback,
                 multiply_adds: None,
                 winograd: false,
+                int8: false,
             },
         ))
     }
@@ -396,10 +402,6 @@ fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_else(|| "no message".to_owned())
 }
 
-/// How far the engine may differ from tract on the load check: the summation orders differ
-/// (the shipped models differ by at most a few 1e-6), a wrong lowering by far more.
-const AGREEMENT: f32 = 1e-4;
-
 /// Runs `compiled` and tract's `network` on the same two pseudo-random inputs (thumbnails
 /// of random pixels through the manifest's scale; random recurrent states in [-1, 1]) and
 /// compares every output the controller reads. Leaves the compiled plan's recurrent inputs
@@ -486,10 +488,14 @@ fn engine_agrees_with_tract(
                     tract.len()
                 ));
             }
+            // The plan's tolerance: float graphs differ from tract in summation order only (a
+            // few 1e-6 on the shipped models), int8 ones also where a value rounds onto the
+            // neighbouring grid step; a wrong lowering by far more.
+            let tolerance = compiled.tolerance();
             for (i, (&a, &b)) in engine.iter().zip(tract).enumerate() {
                 let agree = a == b
                     || (a.is_nan() && b.is_nan())
-                    || (a - b).abs() <= AGREEMENT * (1.0 + b.abs());
+                    || (a - b).abs() <= tolerance * (1.0 + b.abs());
                 if !agree {
                     return Err(format!(
                         "the engine's output {name:?}[{i}] is {a}, tract's {b} (check {probe})"
@@ -573,6 +579,7 @@ impl HcnnPolicy {
             fallback: None,
             multiply_adds: None,
             winograd: false,
+            int8: false,
         };
         for (index, path) in manifest.network_paths().enumerate() {
             let (network, own) = Network::load(manifest, &path, names.clone(), options)?;

@@ -9,6 +9,8 @@
 //! runtime-dispatch crates hide.
 
 use core::fmt;
+
+use super::kernels::int8::Int8Kernel;
 use core::str::FromStr;
 
 /// A set of instructions the kernels can be compiled for, from the most portable up.
@@ -108,6 +110,17 @@ impl Isa {
             Self::Sse2 | Self::Ssse3 | Self::Sse42 => Some(4),
             // AVX-512 takes the AVX2 kernel where its channels are not whole 16-lane vectors.
             Self::Avx2Fma | Self::Avx512 => Some(8),
+        }
+    }
+
+    /// The int8 kernel an int8 policy's layers run with under this set: `pmaddubsw` from
+    /// SSSE3 on (the V5 and V6 Atoms), on 32 bytes with AVX2 (AVX-512 too: its VNNI is not
+    /// used), the portable one below SSSE3.
+    pub(crate) fn int8_kernel(self) -> Int8Kernel {
+        match self {
+            Self::Portable | Self::Sse2 => Int8Kernel::PORTABLE,
+            Self::Ssse3 | Self::Sse42 => Int8Kernel::ssse3(),
+            Self::Avx2Fma | Self::Avx512 => Int8Kernel::avx2(),
         }
     }
 

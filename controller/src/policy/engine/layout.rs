@@ -178,3 +178,66 @@ impl Strided {
         }
     }
 }
+
+/// The uint8 grid of a QDQ graph's activation (`QuantizeLinear` then `DequantizeLinear` with
+/// one `scale` and `zero` point): the values `(code - zero) * scale` for codes 0..=255. A
+/// buffer whose numbers all lie on a grid holds, exactly, the integers an int8 step reads.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Grid {
+    scale: f32,
+    /// `1 / scale`: multiplying by it is exact on values that lie on the grid and saves the
+    /// V5 a division per number (its `divss` takes tens of cycles). On a value that is not
+    /// yet on the grid (the graph's input) it can round a number within an ulp of a tie the
+    /// other way than ONNX's `x / scale` does; the load check bounds what that changes.
+    inverse: f32,
+    zero: u8,
+}
+
+impl Grid {
+    /// `scale` finite and positive (the lowering refuses others).
+    pub(crate) fn new(scale: f32, zero: u8) -> Option<Self> {
+        (scale.is_finite() && scale > 0.0 && (1.0 / scale).is_finite()).then(|| Self {
+            scale,
+            inverse: 1.0 / scale,
+            zero,
+        })
+    }
+
+    pub(crate) fn scale(self) -> f32 {
+        self.scale
+    }
+
+    pub(crate) fn zero(self) -> u8 {
+        self.zero
+    }
+
+    /// `x / scale` rounded half to even and clamped so that adding the zero point gives
+    /// 0..=255: the code minus the zero point, as an integer-valued float. The rounding
+    /// adds and takes away 1.5 x 2^23, which rounds to an integer in the current
+    /// (nearest-even) mode on every instruction set, without SSE4.1's `roundps` (the V5 has
+    /// none) or a call into libm; every operation is one the compiler vectorises.
+    #[inline(always)]
+    fn steps(self, x: f32) -> f32 {
+        let zero = f32::from(self.zero);
+        let steps = (x * self.inverse).clamp(-512.0, 512.0);
+        ((steps + ROUND) - ROUND).clamp(-zero, 255.0 - zero)
+    }
+
+    /// `QuantizeLinear`: the code of `x`, saturated to 0..=255 (NaN gives a code too; the
+    /// load check compares the outputs with tract's).
+    #[inline(always)]
+    pub(crate) fn code(self, x: f32) -> u8 {
+        // An integer from 0 to 255 plus 1.5 x 2^23 holds that integer in its low byte.
+        ((self.steps(x) + f32::from(self.zero) + ROUND).to_bits() & 0xff) as u8
+    }
+
+    /// The nearest value on the grid: `QuantizeLinear` then `DequantizeLinear`.
+    #[inline(always)]
+    pub(crate) fn snap(self, x: f32) -> f32 {
+        self.steps(x) * self.scale
+    }
+}
+
+/// 1.5 x 2^23: adding it to a float below 2^22 in magnitude leaves that number rounded to an
+/// integer in the low bits of the mantissa.
+const ROUND: f32 = 12_582_912.0;

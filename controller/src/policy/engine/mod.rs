@@ -64,7 +64,13 @@ impl CompiledNetwork {
         if !isa.is_available() {
             return Err(Unsupported(format!("this CPU cannot run {isa} kernels")));
         }
-        let lowering = lower::lower(model, inputs, isa.dense_panel_width(), isa.winograd_lanes())?;
+        let lowering = lower::lower(
+            model,
+            inputs,
+            isa.dense_panel_width(),
+            isa.winograd_lanes(),
+            isa.int8_kernel(),
+        )?;
         let mut buffers = lowering.buffers;
         // Constants folded into the steps (weights, biases) need no buffer of their own.
         let mut used = vec![false; buffers.len()];
@@ -143,6 +149,31 @@ impl CompiledNetwork {
         true
     }
 
+    /// How many of its steps compute in integers (a QDQ graph's int8 convolutions and dense
+    /// layers); 0 for a float graph.
+    pub fn int8_steps(&self) -> usize {
+        self.steps
+            .iter()
+            .filter(|step| matches!(step, Step::QuantizedConv(_) | Step::QuantizedDense(_)))
+            .count()
+    }
+
+    /// How far its outputs may differ from tract's on the same graph and input
+    /// ([`oracle::TOLERANCE`], [`oracle::INT8_TOLERANCE`] for a plan that rounds onto grids).
+    pub fn tolerance(&self) -> f32 {
+        let grids = self.steps.iter().any(|step| {
+            matches!(
+                step,
+                Step::QuantizedConv(_) | Step::QuantizedDense(_) | Step::SnapToGrid { .. }
+            )
+        });
+        if grids {
+            oracle::INT8_TOLERANCE
+        } else {
+            oracle::TOLERANCE
+        }
+    }
+
     /// How many steps the plan has.
     pub fn steps(&self) -> usize {
         self.steps.len()
@@ -180,7 +211,7 @@ impl CompiledNetwork {
             for _ in 0..repeats / 10 {
                 execute(
                     self.isa,
-                    &self.steps[i..i + 1],
+                    &mut self.steps[i..i + 1],
                     &mut self.buffers,
                     &mut self.nonzero,
                 );
@@ -189,7 +220,7 @@ impl CompiledNetwork {
             for _ in 0..repeats {
                 execute(
                     self.isa,
-                    &self.steps[i..i + 1],
+                    &mut self.steps[i..i + 1],
                     &mut self.buffers,
                     &mut self.nonzero,
                 );
@@ -206,7 +237,12 @@ impl CompiledNetwork {
 
     /// Runs the plan on the inputs as they are. Allocates nothing.
     pub fn run(&mut self) {
-        execute(self.isa, &self.steps, &mut self.buffers, &mut self.nonzero);
+        execute(
+            self.isa,
+            &mut self.steps,
+            &mut self.buffers,
+            &mut self.nonzero,
+        );
     }
 }
 
@@ -214,7 +250,7 @@ impl CompiledNetwork {
 // (The kernels' own `unsafe` blocks, in `kernels::{simd, winograd, window_asm}`, rest on bounds
 // each kernel checks once before its loops, with checked arithmetic.)
 #[allow(unsafe_code)]
-fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+fn execute(isa: Isa, steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
     #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
     // SAFETY: `CompiledNetwork::lower` refuses an instruction set this CPU does not run, and
     // `isa` cannot change afterwards.
@@ -234,7 +270,7 @@ fn execute(isa: Isa, steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u3
 
 /// The portable path: no target features, product and sum rounded separately.
 #[inline(never)]
-fn run_portable(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+fn run_portable(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
     plan::run::<kernels::Generic<kernels::Separate>>(steps, buffers, nonzero);
 }
 
@@ -244,27 +280,27 @@ mod x86 {
     use super::plan::{Step, run};
 
     #[target_feature(enable = "avx,avx2,fma,avx512f")]
-    pub(super) fn run_avx512(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+    pub(super) fn run_avx512(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
         run::<Avx512Kernels>(steps, buffers, nonzero);
     }
 
     #[target_feature(enable = "avx,avx2,fma")]
-    pub(super) fn run_avx2_fma(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+    pub(super) fn run_avx2_fma(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
         run::<AvxKernels>(steps, buffers, nonzero);
     }
 
     #[target_feature(enable = "sse2,sse3,ssse3,sse4.1,sse4.2")]
-    pub(super) fn run_sse42(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+    pub(super) fn run_sse42(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
         run::<SseKernels>(steps, buffers, nonzero);
     }
 
     #[target_feature(enable = "sse2,sse3,ssse3")]
-    pub(super) fn run_ssse3(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+    pub(super) fn run_ssse3(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
         run::<SseKernels>(steps, buffers, nonzero);
     }
 
     #[target_feature(enable = "sse2")]
-    pub(super) fn run_sse2(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+    pub(super) fn run_sse2(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
         run::<SseKernels>(steps, buffers, nonzero);
     }
 }
@@ -461,15 +497,134 @@ mod tests {
     }
 
     #[test]
-    #[ignore = "profiling aid: cargo test --release -p dribble-controller profile -- --ignored --nocapture"]
-    fn profile_the_cnn_fixture() {
-        let (path, proto) = cnn_fixture();
+    fn a_grid_rounds_half_to_even_saturates_and_snaps_to_its_codes() {
+        let grid = layout::Grid::new(0.5, 3).expect("grid");
+        let dequantize = |code: u8| (f32::from(code) - 3.0) * 0.5;
+        // x / 0.5 = 0.5, 1.5, 2.5, -0.5, -1.5 round to 0, 2, 2, -0, -2 (half to even), plus 3.
+        for (x, code) in [(0.25, 3), (0.75, 5), (1.25, 5), (-0.25, 3), (-0.75, 1)] {
+            assert_eq!(grid.code(x), code, "{x}");
+            assert_eq!(grid.snap(x), dequantize(code), "{x}");
+        }
+        // Saturation at both ends, and far outside.
+        for (x, code) in [
+            (-1.5, 0),
+            (-100.0, 0),
+            (126.0, 255),
+            (1e30, 255),
+            (-1e30, 0),
+        ] {
+            assert_eq!(grid.code(x), code, "{x}");
+            assert_eq!(grid.snap(x), dequantize(code), "{x}");
+        }
+        // Every code's own value snaps onto itself, exactly, for a scale like the policies'.
+        let grid = layout::Grid::new(0.011_601_844, 17).expect("grid");
+        for code in 0..=255u8 {
+            let value = f32::from(i16::from(code) - 17) * 0.011_601_844;
+            assert_eq!(grid.code(value), code);
+            assert_eq!(grid.snap(value).to_bits(), value.to_bits());
+        }
+        assert!(layout::Grid::new(0.0, 0).is_none() && layout::Grid::new(f32::NAN, 0).is_none());
+    }
+
+    /// A fixture's file and parsed model, by directory name.
+    fn fixture(name: &str) -> (PathBuf, pb::ModelProto) {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../models/fixtures")
+            .join(name)
+            .join("policy.onnx");
+        let bytes = std::fs::read(&path).expect("fixture");
+        let proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut &bytes[..])
+            .expect("parses");
+        (path, proto)
+    }
+
+    #[test]
+    fn an_int8_cnn_runs_its_hidden_layers_on_integer_steps_and_agrees_with_tract() {
+        // The CNN fixture quantized by onnxruntime (QDQ): its four convolutions and its
+        // hidden dense layer in integers, the output layer in floats, on every instruction
+        // set; tract, which runs the same QDQ file, is the oracle.
+        let (path, proto) = fixture("cnn-int8");
+        for isa in Isa::available() {
+            let network = CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, isa)
+                .unwrap_or_else(|why| panic!("{isa}: {}", why.0));
+            let count = |kind: fn(&Step) -> bool| network.steps.iter().filter(|s| kind(s)).count();
+            assert_eq!(count(|s| matches!(s, Step::QuantizedConv(_))), 4, "{isa}");
+            assert_eq!(count(|s| matches!(s, Step::QuantizedDense(_))), 1, "{isa}");
+            assert_eq!(count(|s| matches!(s, Step::Dense { .. })), 1, "{isa}");
+            assert_eq!(count(|s| matches!(s, Step::Conv { .. })), 0, "{isa}");
+            // The conv outputs' grids go into the convolutions; the inputs, the pooled maps
+            // and the features have pairs of their own.
+            assert_eq!(count(|s| matches!(s, Step::SnapToGrid { .. })), 5, "{isa}");
+            assert_eq!(network.int8_steps(), 5);
+            assert_eq!(network.tolerance(), oracle::INT8_TOLERANCE);
+            match oracle::compare(&proto, &CNN_INPUTS, isa, 29, 3) {
+                oracle::Comparison::Agree { largest_difference } => {
+                    println!("{isa}: largest difference from tract {largest_difference}");
+                }
+                other => panic!("{isa}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn an_int8_cnn_gives_onnxruntimes_commands_on_its_reference_thumbnails() {
+        let (path, proto) = fixture("cnn-int8");
+        let reference = path.with_file_name("reference");
+        let thumbnails = std::fs::read(reference.join("thumbnails.u8")).expect("thumbnails");
+        let commands: Vec<f32> = std::fs::read(reference.join("commands.f32"))
+            .expect("commands")
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        let (top, bottom) = (120 * 160, 60 * 80);
+        let steps = thumbnails.len() / (top + bottom);
+        assert!(steps >= 4 && commands.len() == 3 * steps);
         for isa in Isa::available() {
             let mut network =
                 CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, isa).expect("lowers");
+            let mut worst = 0.0f32;
+            for (step, pair) in thumbnails.chunks_exact(top + bottom).enumerate() {
+                let scale = 1.0 / 255.0;
+                for (name, pixels) in [("top", &pair[..top]), ("bottom", &pair[top..])] {
+                    let input = network.input_mut(name).expect("input");
+                    for (x, &p) in input.iter_mut().zip(pixels) {
+                        *x = f32::from(p) * scale;
+                    }
+                }
+                network.run();
+                let output = network.output("command").expect("command");
+                for (a, b) in output.iter().zip(&commands[3 * step..3 * step + 3]) {
+                    worst = worst.max((a - b).abs());
+                }
+            }
+            println!("{isa}: largest difference from onnxruntime {worst}");
+            assert!(worst <= 1e-2, "{isa}: {worst}");
+        }
+    }
+
+    #[test]
+    #[ignore = "profiling aid: cargo test --release -p dribble-controller profile -- --ignored --nocapture"]
+    fn profile_the_cnn_fixture() {
+        for (path, proto) in [cnn_fixture(), fixture("cnn-int8")] {
+            println!("{}", path.display());
+            profile(&path, &proto);
+        }
+    }
+
+    fn profile(path: &Path, proto: &pb::ModelProto) {
+        for isa in Isa::available() {
+            let mut network =
+                CompiledNetwork::lower(path, proto, &CNN_INPUTS, isa).expect("lowers");
             let report = network.profile(2000);
             let total: std::time::Duration = report.iter().map(|(_, t, _)| *t).sum();
-            let peak = peak::multiply_adds_per_second(isa);
+            // An int8 plan's share is of the int8 peak (its float steps are a few
+            // thousandths of the arithmetic).
+            let peak = if network.int8_steps() > 0 {
+                peak::int8_multiply_adds_per_second(isa)
+            } else {
+                peak::multiply_adds_per_second(isa)
+            };
             let share = |macs: u64, time: std::time::Duration| {
                 peak.map_or(String::new(), |peak| {
                     format!("{:5.1} %", 100.0 * macs as f64 / peak / time.as_secs_f64())

@@ -33,7 +33,33 @@ pub fn multiply_adds_per_second(isa: Isa) -> Option<f64> {
     if !isa.is_available() {
         return None;
     }
-    let (chains_lanes, probe) = probe_of(isa)?;
+    measure(probe_of(isa)?)
+}
+
+/// Unsigned-by-signed 8-bit multiply-adds a second that one core completes with the int8
+/// kernels' sequence for `isa` (`pmaddubsw`, `pmaddwd` with ones, `paddd`: the products of
+/// one quad into 32-bit sums, as [`super::kernels::int8`] computes without VNNI), lanes
+/// counted (one AVX2 `vpmaddubsw` is 32 products); `None` below SSSE3. Each chain feeds
+/// its sums back as the next bytes, so no step can be hoisted out of the loop; the chains'
+/// latency is hidden on x86-64 (twelve of them), not quite on the 32-bit build (five).
+pub fn int8_multiply_adds_per_second(isa: Isa) -> Option<f64> {
+    if !isa.is_available() {
+        return None;
+    }
+    let probe: Probe = match isa {
+        Isa::Portable | Isa::Sse2 => return None,
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        Isa::Ssse3 | Isa::Sse42 => (x86::INT8_CHAINS * 16, x86::ssse3_int8_probe),
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        Isa::Avx2Fma | Isa::Avx512 => (x86::INT8_CHAINS * 32, x86::avx2_int8_probe),
+        #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+        _ => return None,
+    };
+    measure(probe)
+}
+
+/// The fastest of [`MEASUREMENTS`] runs of `probe`, in multiply-adds a second.
+fn measure((chains_lanes, probe): Probe) -> Option<f64> {
     let mut rounds = 1_000u64;
     loop {
         let started = Instant::now();
@@ -89,6 +115,51 @@ mod x86 {
     /// Twelve fused chains of four cycles keep two units busy with room to spare.
     pub(super) const AVX_CHAINS: usize = if cfg!(target_arch = "x86_64") { 12 } else { 6 };
     pub(super) const AVX512_CHAINS: usize = if cfg!(target_arch = "x86_64") { 24 } else { 6 };
+
+    /// int8 chains: two registers hold the weights and the ones.
+    pub(super) const INT8_CHAINS: usize = if cfg!(target_arch = "x86_64") { 12 } else { 5 };
+
+    pub(super) fn ssse3_int8_probe(rounds: u64) -> f32 {
+        // SAFETY: only where `Isa::Ssse3` or a wider set is available.
+        unsafe { ssse3_int8(rounds) }
+    }
+
+    pub(super) fn avx2_int8_probe(rounds: u64) -> f32 {
+        // SAFETY: only where `Isa::Avx2Fma` or `Isa::Avx512` is available (AVX2 included).
+        unsafe { avx2_int8(rounds) }
+    }
+
+    #[target_feature(enable = "ssse3")]
+    fn ssse3_int8(rounds: u64) -> f32 {
+        let (w, ones) = (_mm_set1_epi8(black_box(3)), _mm_set1_epi16(1));
+        let mut chains = [_mm_set1_epi32(black_box(0x0102_0304)); INT8_CHAINS];
+        for _ in 0..rounds {
+            for chain in &mut chains {
+                let pairs = _mm_maddubs_epi16(*chain, w);
+                *chain = _mm_add_epi32(*chain, _mm_madd_epi16(pairs, ones));
+            }
+        }
+        let sum = chains
+            .iter()
+            .fold(_mm_setzero_si128(), |s, &c| _mm_xor_si128(s, c));
+        _mm_cvtsi128_si32(sum) as f32
+    }
+
+    #[target_feature(enable = "avx2")]
+    fn avx2_int8(rounds: u64) -> f32 {
+        let (w, ones) = (_mm256_set1_epi8(black_box(3)), _mm256_set1_epi16(1));
+        let mut chains = [_mm256_set1_epi32(black_box(0x0102_0304)); INT8_CHAINS];
+        for _ in 0..rounds {
+            for chain in &mut chains {
+                let pairs = _mm256_maddubs_epi16(*chain, w);
+                *chain = _mm256_add_epi32(*chain, _mm256_madd_epi16(pairs, ones));
+            }
+        }
+        let sum = chains
+            .iter()
+            .fold(_mm256_setzero_si256(), |s, &c| _mm256_xor_si256(s, c));
+        _mm256_cvtsi256_si32(sum) as f32
+    }
 
     /// The factor and addend of every chain: the values settle near 1, far from overflow
     /// and from subnormals, whose slow paths would not measure the units.
@@ -170,6 +241,20 @@ mod tests {
             // multiply-adds a second on one core: a wrong count of lanes or rounds, or a
             // probe the compiler folded away, lands outside.
             assert!((1e7..1e12).contains(&peak), "{isa}: {peak:e}");
+        }
+    }
+
+    #[test]
+    fn every_set_from_ssse3_on_has_an_int8_peak() {
+        for isa in Isa::available() {
+            let peak = int8_multiply_adds_per_second(isa);
+            match isa {
+                Isa::Portable | Isa::Sse2 => assert_eq!(peak, None),
+                _ => {
+                    let peak = peak.unwrap_or_else(|| panic!("{isa}"));
+                    assert!((1e7..1e13).contains(&peak), "{isa}: {peak:e}");
+                }
+            }
         }
     }
 

@@ -5,9 +5,10 @@
 
 use core::mem;
 
+use super::kernels::int8::{Int8Kernel, QuadPanels, Segments, Window};
 use super::kernels::winograd;
 use super::kernels::{Kernels, portable};
-use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Strided};
+use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Grid, Strided};
 
 /// A max-pool folded into the convolution before it: the convolution's rows under one row
 /// of pooling windows (`kernel[0]` of them) are computed into `scratch` and pooled at once,
@@ -33,6 +34,120 @@ pub(crate) struct WinogradConv {
     pub transformed: BufferId,
     /// `[tile][point][out]`
     pub products: BufferId,
+}
+
+/// What an int8 layer does with its exact integer sums, output by output: back to the float
+/// its QDQ graph computes (`(sum - zero x sum of weights) x input scale x weight scale +
+/// bias`), then the output's own `QuantizeLinear`/`DequantizeLinear` pair where the graph
+/// has one (`output`), then the ReLU where the graph has one. The ReLU and the grid commute
+/// (the grid is monotonic and holds 0.0), so their order in the graph does not matter.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Epilogue {
+    /// The input's zero point times each output's sum of weights.
+    pub offsets: Vec<i32>,
+    /// Input scale times each output's weight scale.
+    pub scales: Vec<f32>,
+    pub bias: Vec<f32>,
+    pub relu: bool,
+    pub output: Option<Grid>,
+}
+
+impl Epilogue {
+    /// Three passes over the outputs, each simple enough to be vectorised.
+    #[inline(always)]
+    fn apply(&self, sums: &[i32], out: &mut [f32]) {
+        let outputs = out
+            .iter_mut()
+            .zip(sums)
+            .zip(&self.offsets)
+            .zip(&self.scales)
+            .zip(&self.bias);
+        for ((((y, &sum), &offset), &scale), &bias) in outputs {
+            // Exact: the lowering caps the inputs so that both terms stay below 2^30.
+            *y = (sum - offset) as f32 * scale + bias;
+        }
+        if let Some(grid) = self.output {
+            for y in out.iter_mut() {
+                *y = grid.snap(*y);
+            }
+        }
+        if self.relu {
+            for y in out.iter_mut() {
+                *y = y.max(0.0);
+            }
+        }
+    }
+}
+
+/// An int8 convolution (a QDQ graph's `Conv` between int8 weights and an input on a grid):
+/// the input's codes into a zero-bordered byte map, then per output pixel its window and
+/// one int8 dense product with every output channel's weights.
+pub(crate) struct QuantizedConv {
+    /// The float map, `[h][w][c]` (or `[c][h][w]`, `from_nchw`), on the grid `input`.
+    pub from: BufferId,
+    pub size: [usize; 3],
+    pub from_nchw: bool,
+    /// Top and left padding.
+    pub origin: [usize; 2],
+    pub input: Grid,
+    pub window: Window,
+    /// Output height and width (channels: the weights' outputs).
+    pub out_size: [usize; 2],
+    /// `[out channel][ky][kx][c]` rows.
+    pub weights: QuadPanels,
+    pub kernel: Int8Kernel,
+    pub epilogue: Epilogue,
+    /// Scratch, allocated at load: the padded map's codes (the border holds the zero
+    /// point; [`Window::slack`] bytes after it), where a window's rows start, and one
+    /// pixel's sums.
+    pub codes: Vec<u8>,
+    pub starts: Vec<usize>,
+    pub sums: Vec<i32>,
+    /// NHWC floats.
+    pub out: BufferId,
+}
+
+impl core::fmt::Debug for QuantizedConv {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let [kh, kw] = self.window.kernel;
+        let [oh, ow] = self.out_size;
+        write!(
+            f,
+            "QuantizedConv {{ {kh}x{kw}x{} -> {}, {oh}x{ow}, {} }}",
+            self.window.channels,
+            self.weights.outputs(),
+            self.kernel.name()
+        )
+    }
+}
+
+/// An int8 dense layer (a QDQ graph's `Gemm`/`MatMul` between int8 weights and an input on
+/// a grid), row by row.
+pub(crate) struct QuantizedDense {
+    pub from: BufferId,
+    pub input: Grid,
+    pub rows: usize,
+    /// `[out][in]` rows.
+    pub weights: QuadPanels,
+    pub kernel: Int8Kernel,
+    pub epilogue: Epilogue,
+    /// Scratch: one row's codes (padded to whole quads with zeros) and sums.
+    pub codes: Vec<u8>,
+    pub sums: Vec<i32>,
+    pub to: BufferId,
+}
+
+impl core::fmt::Debug for QuantizedDense {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "QuantizedDense {{ {} -> {}, {} row(s), {} }}",
+            self.weights.inputs(),
+            self.weights.outputs(),
+            self.rows,
+            self.kernel.name()
+        )
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -145,6 +260,15 @@ pub(crate) enum Step {
         target: Strided,
         to: BufferId,
     },
+    /// A `QuantizeLinear`/`DequantizeLinear` pair no step before it could take in.
+    SnapToGrid {
+        from: BufferId,
+        to: BufferId,
+        len: usize,
+        grid: Grid,
+    },
+    QuantizedConv(Box<QuantizedConv>),
+    QuantizedDense(Box<QuantizedDense>),
 }
 
 impl Step {
@@ -168,6 +292,13 @@ impl Step {
             }
             Self::Dense { weights, rows, .. } => rows * weights.inputs() * weights.outputs(),
             Self::Lstm { weights, .. } => weights.inputs() * weights.outputs(),
+            Self::QuantizedConv(conv) => {
+                let [oh, ow] = conv.out_size;
+                oh * ow * conv.window.kernel[0] * conv.window.row() * conv.epilogue.bias.len()
+            }
+            Self::QuantizedDense(dense) => {
+                dense.rows * dense.weights.inputs() * dense.weights.outputs()
+            }
             _ => 0,
         };
         count as u64
@@ -183,7 +314,10 @@ impl Step {
             | Self::Copy { from, to, .. }
             | Self::Gather { from, to, .. }
             | Self::Relu { from, to, .. }
-            | Self::Reduce { from, to, .. } => (vec![*from], vec![*to]),
+            | Self::Reduce { from, to, .. }
+            | Self::SnapToGrid { from, to, .. } => (vec![*from], vec![*to]),
+            Self::QuantizedConv(conv) => (vec![conv.from], vec![conv.out]),
+            Self::QuantizedDense(dense) => (vec![dense.from], vec![dense.to]),
             Self::Conv {
                 padded,
                 pool,
@@ -220,8 +354,20 @@ impl Step {
 /// instruction set, so that every kernel below is compiled for that set; each step's own
 /// function is inlined into it too.
 #[inline(always)]
-pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+pub(crate) fn run<K: Kernels>(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
     for step in steps {
+        match step {
+            Step::QuantizedConv(conv) => quantized_conv(conv, buffers),
+            Step::QuantizedDense(dense) => quantized_dense(dense, buffers),
+            step => float_step::<K>(step, buffers, nonzero),
+        }
+    }
+}
+
+/// One step of the float (and grid) kind: the int8 steps own scratch and run above.
+#[inline(always)]
+fn float_step<K: Kernels>(step: &Step, buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+    {
         match step {
             Step::Pad {
                 from,
@@ -259,7 +405,7 @@ pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>], nonzero:
                 if let Some(winograd) = winograd
                     && winograd_conv_pool::<K>(&layer, winograd, *padded, *out, buffers)
                 {
-                    continue;
+                    return;
                 }
                 match pool {
                     None => with_output(buffers, *out, |target, buffers| {
@@ -371,8 +517,100 @@ pub(crate) fn run<K: Kernels>(steps: &[Step], buffers: &mut [Vec<f32>], nonzero:
             } => with_output(buffers, *to, |out, buffers| {
                 reduce(*op, &buffers[*from], target, out);
             }),
+            Step::SnapToGrid {
+                from,
+                to,
+                len,
+                grid,
+            } => with_output(buffers, *to, |out, buffers| {
+                for (y, &x) in out[..*len].iter_mut().zip(&buffers[*from]) {
+                    *y = grid.snap(x);
+                }
+            }),
+            Step::QuantizedConv(_) | Step::QuantizedDense(_) => {
+                unreachable!("int8 steps run in `run`")
+            }
         }
     }
+}
+
+/// An int8 convolution: the input's codes into the padded byte map (its border stays the
+/// zero point), then each output pixel's window through the int8 kernel.
+#[inline(always)]
+fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
+    let QuantizedConv {
+        from,
+        size: [h, w, c],
+        from_nchw,
+        origin: [top, left],
+        input,
+        window,
+        out_size: [oh, ow],
+        weights,
+        kernel,
+        epilogue,
+        codes,
+        starts,
+        sums,
+        out,
+    } = conv;
+    let (h, w, c) = (*h, *w, *c);
+    let map = &buffers[*from];
+    for y in 0..h {
+        let row = &mut codes[((*top + y) * window.padded_width + *left) * c..][..w * c];
+        // One channel is the same row in both layouts (the cameras' input): no per-pixel walk.
+        if *from_nchw && c > 1 {
+            for (x, pixel) in row.chunks_exact_mut(c).enumerate() {
+                for (channel, code) in pixel.iter_mut().enumerate() {
+                    *code = input.code(map[(channel * h + y) * w + x]);
+                }
+            }
+        } else {
+            for (code, &value) in row.iter_mut().zip(&map[y * w * c..]) {
+                *code = input.code(value);
+            }
+        }
+    }
+    let outputs = sums.len();
+    with_output(buffers, *out, |target, _| {
+        let pixels = target.chunks_exact_mut(outputs).take(*oh * *ow);
+        for (pixel, values) in pixels.enumerate() {
+            window.starts([pixel / *ow, pixel % *ow], starts);
+            let segments = Segments {
+                starts,
+                quads: window.quads(),
+            };
+            kernel.product(codes, segments, weights, sums);
+            epilogue.apply(sums, values);
+        }
+    });
+}
+
+/// An int8 dense layer: each row's codes through the int8 kernel.
+#[inline(always)]
+fn quantized_dense(dense: &mut QuantizedDense, buffers: &mut [Vec<f32>]) {
+    let QuantizedDense {
+        from,
+        input,
+        rows,
+        weights,
+        kernel,
+        epilogue,
+        codes,
+        sums,
+        to,
+    } = dense;
+    let (k, n) = (weights.inputs(), weights.outputs());
+    let mut target = mem::take(&mut buffers[*to]);
+    let x = &buffers[*from];
+    for r in 0..*rows {
+        for (code, &value) in codes[..k].iter_mut().zip(&x[r * k..(r + 1) * k]) {
+            *code = input.code(value);
+        }
+        kernel.dense(codes, weights, sums);
+        epilogue.apply(sums, &mut target[r * n..(r + 1) * n]);
+    }
+    buffers[*to] = target;
 }
 
 /// Lends buffer `to` to `compute` as its output while the others stay readable, then puts

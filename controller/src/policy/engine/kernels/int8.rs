@@ -17,8 +17,11 @@
 //! them after ReLU and max-pooling) is skipped with its weights, as the float dense kernel
 //! skips zero inputs.
 //!
-//! The QDQ lowering is what calls these (issue 29, in progress); until then only the tests do.
-#![cfg_attr(not(test), allow(dead_code))]
+//! The QDQ lowering (`lower/quantized.rs`) lays the weights out; the plan's int8 steps call
+//! [`Int8Kernel::dense`] once per dense row and [`Int8Kernel::product`] once per convolution
+//! output pixel, whose window is read in place from the padded map, one segment per kernel
+//! row ([`Window`], [`Segments`]): no copy of the window (its 5-byte rows made `memcpy`
+//! calls the first layer's 4800 pixels could not afford on the V5).
 // The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
 #![allow(unsafe_code)]
 
@@ -84,6 +87,14 @@ impl QuadPanels {
         })
     }
 
+    pub(crate) fn inputs(&self) -> usize {
+        self.inputs
+    }
+
+    pub(crate) fn outputs(&self) -> usize {
+        self.outputs
+    }
+
     /// Inputs rounded up to whole quads: the length the input slice must have.
     pub(crate) fn padded_inputs(&self) -> usize {
         self.inputs.div_ceil(4) * 4
@@ -101,24 +112,64 @@ fn quad(x: &[u8], q: usize) -> u32 {
     u32::from_le_bytes([x[4 * q], x[4 * q + 1], x[4 * q + 2], x[4 * q + 3]])
 }
 
+/// Where a product's inputs lie: `starts.len()` segments of `4 * quads` bytes each, segment
+/// `r` from `x[starts[r]]` on, read one after the other as one vector of
+/// [`QuadPanels::padded_inputs`] bytes. A dense row is one segment; a convolution window is
+/// one segment per kernel row, read in place from the padded map (its rows rounded up to
+/// whole quads: the extra bytes belong to the next pixel and meet zero weights).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Segments<'a> {
+    pub starts: &'a [usize],
+    pub quads: usize,
+}
+
+impl Segments<'_> {
+    /// Every segment inside `x`, and as many quads in all as the weights have: checked once
+    /// per call, so the loops' reads are in bounds.
+    fn check(&self, x: &[u8], weights: &QuadPanels) {
+        let len = 4 * self.quads;
+        assert!(
+            self.starts.len() * len == weights.padded_inputs()
+                && self
+                    .starts
+                    .iter()
+                    .all(|&start| start.checked_add(len).is_some_and(|end| end <= x.len())),
+            "int8 segments outside their input"
+        );
+    }
+
+    /// The four bytes of quad `q` (counted over all segments) as one little-endian word.
+    #[inline(always)]
+    fn quad(&self, x: &[u8], segment: usize, q: usize) -> u32 {
+        quad(&x[self.starts[segment]..], q)
+    }
+}
+
 /// `acc = W x` in exact integers, any CPU: the reference the vector kernels equal.
-/// `x` holds [`QuadPanels::padded_inputs`] values (the padding zero), `acc` the outputs.
-pub(crate) fn dense_portable(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+pub(crate) fn dense_portable(
+    x: &[u8],
+    segments: Segments<'_>,
+    weights: &QuadPanels,
+    acc: &mut [i32],
+) {
+    segments.check(x, weights);
     let width = weights.width;
-    let quads = weights.padded_inputs() / 4;
     for (panel, out) in acc.chunks_mut(width).enumerate() {
         let w = weights.panel(panel);
         let mut sums = [0i32; 64];
         let sums = &mut sums[..width.min(64)];
-        for q in 0..quads {
-            if quad(x, q) == 0 {
-                continue;
-            }
-            let xs = &x[4 * q..4 * q + 4];
-            for (column, sum) in sums.iter_mut().enumerate() {
-                let ws = &w[(q * width + column) * 4..(q * width + column) * 4 + 4];
-                for (&xv, &wv) in xs.iter().zip(ws) {
-                    *sum += i32::from(xv) * i32::from(wv);
+        for segment in 0..segments.starts.len() {
+            for q in 0..segments.quads {
+                let bytes = segments.quad(x, segment, q).to_le_bytes();
+                if bytes == [0; 4] {
+                    continue;
+                }
+                let base = (segment * segments.quads + q) * width;
+                for (column, sum) in sums.iter_mut().enumerate() {
+                    let ws = &w[(base + column) * 4..(base + column) * 4 + 4];
+                    for (&xv, &wv) in bytes.iter().zip(ws) {
+                        *sum += i32::from(xv) * i32::from(wv);
+                    }
                 }
             }
         }
@@ -126,41 +177,82 @@ pub(crate) fn dense_portable(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
     }
 }
 
-/// [`dense_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`): panels of 16 outputs.
+/// [`dense_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`): panels of 16 outputs, held in
+/// four registers (with the input broadcast, a weight vector, the ones and a product: the
+/// V5's eight). Bounds are checked once per segment, not per quad.
 ///
 /// # Safety
 /// The CPU must have SSSE3; `weights.width()` must be 16.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "ssse3")]
-pub(crate) unsafe fn dense_ssse3(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+pub(crate) unsafe fn dense_ssse3(
+    x: &[u8],
+    segments: Segments<'_>,
+    weights: &QuadPanels,
+    acc: &mut [i32],
+) {
     debug_assert_eq!(weights.width, 16);
-    let quads = weights.padded_inputs() / 4;
-    assert!(x.len() >= quads * 4 && acc.len() == weights.outputs);
+    segments.check(x, weights);
+    assert_eq!(acc.len(), weights.outputs);
     let ones = _mm_set1_epi16(1);
+    let row = 4 * segments.quads;
     for (panel, out) in acc.chunks_mut(16).enumerate() {
         let w = weights.panel(panel);
-        let mut sums = [_mm_setzero_si128(); 4];
-        for q in 0..quads {
-            let bytes = quad(x, q);
-            if bytes == 0 {
-                continue;
-            }
-            let xs = _mm_set1_epi32(bytes as i32);
-            let base = w[q * 64..q * 64 + 64].as_ptr().cast::<__m128i>();
-            for (v, sum) in sums.iter_mut().enumerate() {
-                // SAFETY: `base` points at the quad's 64 weight bytes (a slice bounds-checked
-                // above); `v < 4` reads 16 of them, unaligned.
-                let ws = unsafe { _mm_loadu_si128(base.add(v)) };
-                let pairs = _mm_maddubs_epi16(xs, ws);
-                *sum = _mm_add_epi32(*sum, _mm_madd_epi16(pairs, ones));
+        let (mut s0, mut s1, mut s2, mut s3) = (
+            _mm_setzero_si128(),
+            _mm_setzero_si128(),
+            _mm_setzero_si128(),
+            _mm_setzero_si128(),
+        );
+        for (segment, &start) in segments.starts.iter().enumerate() {
+            let inputs = &x[start..start + row];
+            let panel_row = &w[segment * row * 16..(segment + 1) * row * 16];
+            for (bytes, quad_weights) in inputs.chunks_exact(4).zip(panel_row.chunks_exact(64)) {
+                let bytes = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
+                if bytes == 0 {
+                    continue;
+                }
+                let xs = _mm_set1_epi32(bytes as i32);
+                let base = quad_weights.as_ptr().cast::<__m128i>();
+                // SAFETY: `quad_weights` is 64 bytes (an exact chunk); each load reads 16 of
+                // them, unaligned.
+                let (w0, w1, w2, w3) = unsafe {
+                    (
+                        _mm_loadu_si128(base),
+                        _mm_loadu_si128(base.add(1)),
+                        _mm_loadu_si128(base.add(2)),
+                        _mm_loadu_si128(base.add(3)),
+                    )
+                };
+                s0 = _mm_add_epi32(s0, _mm_madd_epi16(_mm_maddubs_epi16(xs, w0), ones));
+                s1 = _mm_add_epi32(s1, _mm_madd_epi16(_mm_maddubs_epi16(xs, w1), ones));
+                s2 = _mm_add_epi32(s2, _mm_madd_epi16(_mm_maddubs_epi16(xs, w2), ones));
+                s3 = _mm_add_epi32(s3, _mm_madd_epi16(_mm_maddubs_epi16(xs, w3), ones));
             }
         }
-        let mut lanes = [0i32; 16];
-        for (v, sum) in sums.iter().enumerate() {
-            // SAFETY: four lanes of 32 bits into `lanes[4 v..4 v + 4]`, inside its 16.
-            unsafe { _mm_storeu_si128(lanes[4 * v..].as_mut_ptr().cast(), *sum) };
+        if let Ok(out) = <&mut [i32; 16]>::try_from(&mut *out) {
+            let target = out.as_mut_ptr().cast::<__m128i>();
+            // SAFETY: four stores of four lanes into the 16 of `out`.
+            unsafe {
+                _mm_storeu_si128(target, s0);
+                _mm_storeu_si128(target.add(1), s1);
+                _mm_storeu_si128(target.add(2), s2);
+                _mm_storeu_si128(target.add(3), s3);
+            }
+        } else {
+            let mut lanes = [0i32; 16];
+            let target = lanes.as_mut_ptr().cast::<__m128i>();
+            // SAFETY: as above, into `lanes`.
+            unsafe {
+                _mm_storeu_si128(target, s0);
+                _mm_storeu_si128(target.add(1), s1);
+                _mm_storeu_si128(target.add(2), s2);
+                _mm_storeu_si128(target.add(3), s3);
+            }
+            for (o, &lane) in out.iter_mut().zip(&lanes) {
+                *o = lane;
+            }
         }
-        out.copy_from_slice(&lanes[..out.len()]);
     }
 }
 
@@ -170,54 +262,194 @@ pub(crate) unsafe fn dense_ssse3(x: &[u8], weights: &QuadPanels, acc: &mut [i32]
 /// The CPU must have AVX2; `weights.width()` must be 32.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "avx2")]
-pub(crate) unsafe fn dense_avx2(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+pub(crate) unsafe fn dense_avx2(
+    x: &[u8],
+    segments: Segments<'_>,
+    weights: &QuadPanels,
+    acc: &mut [i32],
+) {
     debug_assert_eq!(weights.width, 32);
-    let quads = weights.padded_inputs() / 4;
-    assert!(x.len() >= quads * 4 && acc.len() == weights.outputs);
+    segments.check(x, weights);
+    assert_eq!(acc.len(), weights.outputs);
     let ones = _mm256_set1_epi16(1);
+    let row = 4 * segments.quads;
     for (panel, out) in acc.chunks_mut(32).enumerate() {
         let w = weights.panel(panel);
-        let mut sums = [_mm256_setzero_si256(); 4];
-        for q in 0..quads {
-            let bytes = quad(x, q);
-            if bytes == 0 {
-                continue;
-            }
-            let xs = _mm256_set1_epi32(bytes as i32);
-            let base = w[q * 128..q * 128 + 128].as_ptr().cast::<__m256i>();
-            for (v, sum) in sums.iter_mut().enumerate() {
-                // SAFETY: `base` points at the quad's 128 weight bytes (bounds-checked
-                // above); `v < 4` reads 32 of them, unaligned.
-                let ws = unsafe { _mm256_loadu_si256(base.add(v)) };
-                let pairs = _mm256_maddubs_epi16(xs, ws);
-                *sum = _mm256_add_epi32(*sum, _mm256_madd_epi16(pairs, ones));
+        let (mut s0, mut s1, mut s2, mut s3) = (
+            _mm256_setzero_si256(),
+            _mm256_setzero_si256(),
+            _mm256_setzero_si256(),
+            _mm256_setzero_si256(),
+        );
+        for (segment, &start) in segments.starts.iter().enumerate() {
+            let inputs = &x[start..start + row];
+            let panel_row = &w[segment * row * 32..(segment + 1) * row * 32];
+            for (bytes, quad_weights) in inputs.chunks_exact(4).zip(panel_row.chunks_exact(128)) {
+                let bytes = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
+                if bytes == 0 {
+                    continue;
+                }
+                let xs = _mm256_set1_epi32(bytes as i32);
+                let base = quad_weights.as_ptr().cast::<__m256i>();
+                // SAFETY: `quad_weights` is 128 bytes (an exact chunk); each load reads 32
+                // of them, unaligned.
+                let (w0, w1, w2, w3) = unsafe {
+                    (
+                        _mm256_loadu_si256(base),
+                        _mm256_loadu_si256(base.add(1)),
+                        _mm256_loadu_si256(base.add(2)),
+                        _mm256_loadu_si256(base.add(3)),
+                    )
+                };
+                s0 = _mm256_add_epi32(s0, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w0), ones));
+                s1 = _mm256_add_epi32(s1, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w1), ones));
+                s2 = _mm256_add_epi32(s2, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w2), ones));
+                s3 = _mm256_add_epi32(s3, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w3), ones));
             }
         }
         let mut lanes = [0i32; 32];
-        for (v, sum) in sums.iter().enumerate() {
-            // SAFETY: eight lanes of 32 bits into `lanes[8 v..8 v + 8]`, inside its 32.
-            unsafe { _mm256_storeu_si256(lanes[8 * v..].as_mut_ptr().cast(), *sum) };
+        let target = lanes.as_mut_ptr().cast::<__m256i>();
+        // SAFETY: four stores of eight lanes into the 32 of `lanes`.
+        unsafe {
+            _mm256_storeu_si256(target, s0);
+            _mm256_storeu_si256(target.add(1), s1);
+            _mm256_storeu_si256(target.add(2), s2);
+            _mm256_storeu_si256(target.add(3), s3);
         }
-        out.copy_from_slice(&lanes[..out.len()]);
+        for (o, &lane) in out.iter_mut().zip(&lanes) {
+            *o = lane;
+        }
     }
 }
 
-/// A layer's integer sums back to what its QDQ graph computes next: `(acc + bias) * scale[o]`
-/// with `scale[o] = s_x * s_w[o]` (dequantized, for a float layer after it) or that divided by
-/// the next activation's scale, rounded half to even and clamped to u8 (requantized; ReLU is
-/// the clamp at 0 where the zero point is 0). One function for every instruction set, so
-/// that they agree bit for bit after the sums too.
-pub(crate) fn dequantize(acc: &[i32], bias: &[i32], scale: &[f32], out: &mut [f32]) {
-    for (((y, &a), &b), &s) in out.iter_mut().zip(acc).zip(bias).zip(scale) {
-        *y = (a + b) as f32 * s;
+/// Which int8 dense kernel a plan calls, chosen once at load for the instruction set it was
+/// lowered for and checked against this CPU there: AVX2 (panels of 32 outputs) where the
+/// float kernels are AVX2 or AVX-512, SSSE3 (16) on the SSSE3 and SSE4.2 sets (the V5 and
+/// V6 Atoms), the portable one on SSE2 and the portable set. The field is private, so a
+/// kernel this CPU lacks cannot be named.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Int8Kernel(Kind);
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Portable,
+    Ssse3,
+    Avx2,
+}
+
+impl Int8Kernel {
+    pub(crate) const PORTABLE: Self = Self(Kind::Portable);
+
+    /// SSSE3's kernel where this CPU has SSSE3, else the portable one.
+    pub(crate) fn ssse3() -> Self {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        if std::arch::is_x86_feature_detected!("ssse3") {
+            return Self(Kind::Ssse3);
+        }
+        Self::PORTABLE
+    }
+
+    /// AVX2's kernel where this CPU has AVX2, else the widest it has.
+    pub(crate) fn avx2() -> Self {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Self(Kind::Avx2);
+        }
+        Self::ssse3()
+    }
+
+    pub(crate) fn name(self) -> &'static str {
+        match self.0 {
+            Kind::Portable => "portable",
+            Kind::Ssse3 => "ssse3",
+            Kind::Avx2 => "avx2",
+        }
+    }
+
+    /// The panel width its weights must be laid out in.
+    pub(crate) fn width(self) -> usize {
+        match self.0 {
+            Kind::Portable | Kind::Ssse3 => 16,
+            Kind::Avx2 => 32,
+        }
+    }
+
+    /// `acc = W x` in exact integers, `x` read as `segments` say; `weights` laid out for
+    /// this kernel ([`Self::width`]).
+    #[inline]
+    pub(crate) fn product(
+        self,
+        x: &[u8],
+        segments: Segments<'_>,
+        weights: &QuadPanels,
+        acc: &mut [i32],
+    ) {
+        assert_eq!(weights.width, self.width());
+        match self.0 {
+            Kind::Portable => dense_portable(x, segments, weights, acc),
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; width checked.
+            Kind::Ssse3 => unsafe { dense_ssse3(x, segments, weights, acc) },
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; width checked.
+            Kind::Avx2 => unsafe { dense_avx2(x, segments, weights, acc) },
+            #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+            _ => dense_portable(x, segments, weights, acc),
+        }
+    }
+
+    /// [`Self::product`] of one dense row: `x` holds [`QuadPanels::padded_inputs`] bytes.
+    #[inline]
+    pub(crate) fn dense(self, x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+        let segments = Segments {
+            starts: &[0],
+            quads: weights.padded_inputs() / 4,
+        };
+        self.product(x, segments, weights, acc);
     }
 }
 
-/// See [`dequantize`]; `multiplier[o] = s_x * s_w[o] / s_y`, zero point `zero`.
-pub(crate) fn requantize(acc: &[i32], bias: &[i32], multiplier: &[f32], zero: u8, out: &mut [u8]) {
-    for (((y, &a), &b), &m) in out.iter_mut().zip(acc).zip(bias).zip(multiplier) {
-        let value = ((a + b) as f32 * m).round_ties_even() + f32::from(zero);
-        *y = value.clamp(0.0, 255.0) as u8;
+/// The shape of an int8 convolution's input and window: `codes` is the zero-bordered map
+/// `[padded_h][padded_w][c]` (the border holds the zero point, the integer of 0.0), and the
+/// weights' rows are `[ky][kx * c, rounded up to whole quads]`: each kernel row of a window
+/// is read in place, as one segment ([`Segments`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Window {
+    pub padded_width: usize,
+    pub channels: usize,
+    pub kernel: [usize; 2],
+    pub stride: [usize; 2],
+}
+
+impl Window {
+    /// The bytes of one kernel row of a window.
+    pub(crate) fn row(&self) -> usize {
+        self.kernel[1] * self.channels
+    }
+
+    /// Quads per kernel row, rounded up.
+    pub(crate) fn quads(&self) -> usize {
+        self.row().div_ceil(4)
+    }
+
+    /// The weights' inputs: every kernel row rounded up to whole quads.
+    pub(crate) fn padded_len(&self) -> usize {
+        self.kernel[0] * self.quads() * 4
+    }
+
+    /// How many bytes past the map a bottom-right window's last row reads (rounding up to
+    /// quads): the codes buffer holds them too.
+    pub(crate) fn slack(&self) -> usize {
+        self.quads() * 4 - self.row()
+    }
+
+    /// Where each kernel row of output pixel `(y, x)`'s window starts in the map.
+    #[inline(always)]
+    pub(crate) fn starts(&self, [y, x]: [usize; 2], starts: &mut [usize]) {
+        for (ky, start) in starts.iter_mut().enumerate() {
+            *start = ((y * self.stride[0] + ky) * self.padded_width + x * self.stride[1])
+                * self.channels;
+        }
     }
 }
 
@@ -258,11 +490,15 @@ mod tests {
     ) -> Vec<(&'static str, Vec<i32>)> {
         let mut padded = x.to_vec();
         padded.resize(inputs.div_ceil(4) * 4, 0);
+        let one = Segments {
+            starts: &[0],
+            quads: padded.len() / 4,
+        };
         let mut results = Vec::new();
         for width in [4, 8, 16] {
             let weights = QuadPanels::new(rows, outputs, inputs, width).expect("in range");
             let mut acc = vec![0; outputs];
-            dense_portable(&padded, &weights, &mut acc);
+            dense_portable(&padded, one, &weights, &mut acc);
             results.push(("portable", acc));
         }
         #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
@@ -271,14 +507,14 @@ mod tests {
                 let weights = QuadPanels::new(rows, outputs, inputs, 16).expect("in range");
                 let mut acc = vec![0; outputs];
                 // SAFETY: SSSE3 detected; width 16.
-                unsafe { dense_ssse3(&padded, &weights, &mut acc) };
+                unsafe { dense_ssse3(&padded, one, &weights, &mut acc) };
                 results.push(("ssse3", acc));
             }
             if std::arch::is_x86_feature_detected!("avx2") {
                 let weights = QuadPanels::new(rows, outputs, inputs, 32).expect("in range");
                 let mut acc = vec![0; outputs];
                 // SAFETY: AVX2 detected; width 32.
-                unsafe { dense_avx2(&padded, &weights, &mut acc) };
+                unsafe { dense_avx2(&padded, one, &weights, &mut acc) };
                 results.push(("avx2", acc));
             }
         }
@@ -387,15 +623,72 @@ mod tests {
     }
 
     #[test]
-    fn requantizing_rounds_half_to_even_and_clamps_to_u8() {
-        let acc = [5, 15, 25, -40, 10_000, 0];
-        let bias = [0, 0, 0, 0, 0, 1];
-        let mut out = [0u8; 6];
-        requantize(&acc, &bias, &[0.1; 6], 0, &mut out);
-        // 0.5 -> 0, 1.5 -> 2, 2.5 -> 2, negative -> 0 (ReLU), 1000 -> 255, 0.1 -> 0.
-        assert_eq!(out, [0, 2, 2, 0, 255, 0]);
-        let mut floats = [0f32; 2];
-        dequantize(&[3, -4], &[1, 1], &[0.5, 0.25], &mut floats);
-        assert_eq!(floats, [2.0, -0.75]);
+    fn a_convolution_read_in_place_equals_the_integer_definition() {
+        let mut rng = Lcg(5);
+        for (ph, pw, c, oc, [kh, kw], stride) in [
+            (13, 17, 3, 10, [5, 5], [2, 2]),
+            (9, 11, 1, 16, [5, 5], [2, 2]),
+            (7, 7, 8, 33, [3, 3], [1, 1]),
+        ] {
+            let window = Window {
+                padded_width: pw,
+                channels: c,
+                kernel: [kh, kw],
+                stride,
+            };
+            // The map's codes, then the slack a last window row reads past it.
+            let mut codes: Vec<u8> = (0..ph * pw * c).map(|_| rng.next() as u8).collect();
+            codes.extend((0..window.slack()).map(|_| rng.next() as u8));
+            let rows: Vec<i8> = (0..oc * kh * kw * c)
+                .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
+                .collect();
+            // [oc][ky][kx * c] -> rows padded to whole quads, with zero weights.
+            let (row, padded_row) = (window.row(), window.quads() * 4);
+            let mut padded = vec![0i8; oc * window.padded_len()];
+            for o in 0..oc {
+                for ky in 0..kh {
+                    let from = &rows[(o * kh + ky) * row..][..row];
+                    padded[(o * kh + ky) * padded_row..][..row].copy_from_slice(from);
+                }
+            }
+            let (oh, ow) = ((ph - kh) / stride[0] + 1, (pw - kw) / stride[1] + 1);
+            for kernel in [
+                Int8Kernel::PORTABLE,
+                Int8Kernel::ssse3(),
+                Int8Kernel::avx2(),
+            ] {
+                let weights = QuadPanels::new(&padded, oc, window.padded_len(), kernel.width())
+                    .expect("in range");
+                let mut starts = vec![0; kh];
+                let mut sums = vec![0i32; oc];
+                for (y, x) in (0..oh).flat_map(|y| (0..ow).map(move |x| (y, x))) {
+                    window.starts([y, x], &mut starts);
+                    let segments = Segments {
+                        starts: &starts,
+                        quads: window.quads(),
+                    };
+                    kernel.product(&codes, segments, &weights, &mut sums);
+                    for (o, &sum) in sums.iter().enumerate() {
+                        let mut expected = 0i64;
+                        for ky in 0..kh {
+                            for kx in 0..kw {
+                                for i in 0..c {
+                                    let pixel =
+                                        ((y * stride[0] + ky) * pw + x * stride[1] + kx) * c;
+                                    let w = rows[((o * kh + ky) * kw + kx) * c + i];
+                                    expected += i64::from(codes[pixel + i]) * i64::from(w);
+                                }
+                            }
+                        }
+                        assert_eq!(
+                            i64::from(sum),
+                            expected,
+                            "{}: ({y}, {x}) output {o}",
+                            kernel.name()
+                        );
+                    }
+                }
+            }
+        }
     }
 }

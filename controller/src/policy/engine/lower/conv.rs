@@ -75,6 +75,18 @@ impl Lowerer {
             }
             None => vec![0.0; oc],
         };
+        if let Some(step) = self.quantized_conv(
+            weights_name,
+            (buffer, [h, w, c], layout),
+            [pads[0], pads[1]],
+            [padded_h, padded_w],
+            &bias,
+            [[strides[0], strides[1]], out],
+        )? {
+            let to = step.out;
+            self.push(output, Step::QuantizedConv(Box::new(step)));
+            return self.define_tensor(output, to, vec![1, oc, out[0], out[1]], Layout::Nhwc);
+        }
         // [oc][c][ky][kx] -> [ky][kx][c][oc]
         let mut relaid = vec![0.0; weights.len()];
         for o in 0..oc {
@@ -245,6 +257,7 @@ impl Lowerer {
             self.producer.insert(output.to_owned(), index);
             return self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
         }
+        self.keep_grid(buffer, to);
         self.push(
             output,
             Step::MaxPool {

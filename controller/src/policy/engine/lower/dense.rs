@@ -58,6 +58,11 @@ impl Lowerer {
             }
             None => vec![0.0; n],
         };
+        if let Some(step) = self.quantized_gemm(x, [m, k, n], b, transposed, alpha, bias.clone())? {
+            let to = step.to;
+            self.push(output, Step::QuantizedDense(Box::new(step)));
+            return self.define_tensor(output, to, vec![m, n], Layout::Standard);
+        }
         self.dense(output, x, relaid, bias, vec![m, n])
     }
 

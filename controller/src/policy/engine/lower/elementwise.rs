@@ -15,6 +15,14 @@ impl Lowerer {
                     *relu = true;
                     true
                 }
+                Step::QuantizedConv(conv) => {
+                    conv.epilogue.relu = true;
+                    true
+                }
+                Step::QuantizedDense(dense) => {
+                    dense.epilogue.relu = true;
+                    true
+                }
                 _ => false,
             };
             if folded {
@@ -35,6 +43,7 @@ impl Lowerer {
         };
         let len = elements(&shape)?;
         let to = self.buffer(len)?;
+        self.keep_grid(buffer, to);
         self.push(
             output,
             Step::Relu {

@@ -8,8 +8,10 @@
 //! Transpose, Gather (constant indices), Concat, Gemm, MatMul (constant right side, with a
 //! following Add folded into the bias), one LSTM step (forward, default activations), the
 //! element-wise Add, Sub, Mul, Div, Equal with broadcasting, ReduceMax, ReduceSum, Cast to
-//! float, Identity and Constant. Anything else is refused with the reason, and the
-//! network runs under tract instead.
+//! float, Identity and Constant; and a QDQ graph's QuantizeLinear and DequantizeLinear
+//! (uint8 activations per tensor, int8 weights per channel or per tensor), whose Conv and
+//! Gemm become integer steps (`quantized.rs`). Anything else is refused with the reason,
+//! and the network runs under tract instead.
 //!
 //! A model file is input from outside: every dimension, attribute and index it declares is
 //! checked here before any arithmetic uses it. Each tensor the plan computes has no empty
@@ -24,8 +26,9 @@ use std::collections::HashMap;
 
 use tract_onnx::pb;
 
+use super::kernels::int8::Int8Kernel;
 use super::kernels::winograd;
-use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, MAX_RANK, Strided};
+use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Grid, MAX_RANK, Strided};
 use super::plan::{BinaryOp, ConvPool, ReduceOp, Step, WinogradConv};
 
 // The operators by family, each an `impl Lowerer` of its own; this file holds the lowering's
@@ -33,6 +36,7 @@ use super::plan::{BinaryOp, ConvPool, ReduceOp, Step, WinogradConv};
 mod conv;
 mod dense;
 mod elementwise;
+mod quantized;
 mod recurrent;
 mod shape;
 
@@ -132,18 +136,30 @@ struct Lowerer {
     dense_width: usize,
     /// The kernels' lanes for the Winograd convolution ([`super::Isa::winograd_lanes`]).
     winograd_lanes: Option<usize>,
+    /// The int8 kernel of a QDQ graph's integer steps ([`super::Isa::int8_kernel`]).
+    int8: Int8Kernel,
+    /// Integer constants (int8, uint8, int32), which only `DequantizeLinear` reads.
+    codes: HashMap<String, quantized::Codes>,
+    /// `QuantizeLinear` outputs waiting for their `DequantizeLinear`: what they quantize
+    /// and onto which grid.
+    pending: HashMap<String, (String, Grid)>,
+    /// `DequantizeLinear` outputs of int8 weights, as integers.
+    integer_weights: HashMap<String, quantized::IntegerWeights>,
+    /// Buffers whose every number lies on a grid.
+    grids: HashMap<BufferId, Grid>,
 }
 
 /// Lowers `graph` for inputs of the given shapes;
 /// `dense_width`: the most outputs a dense layer's weight panel holds (the kernels' choice,
 /// [`super::Isa::dense_panel_width`]); `winograd_lanes`: whether the kernels take 5x5
 /// stride-two convolutions with their 2x2 pool by [`super::kernels::winograd`], and in vectors of
-/// how many lanes.
+/// how many lanes; `int8`: the kernel of a QDQ graph's integer steps.
 pub(crate) fn lower(
     model: &pb::ModelProto,
     inputs: &[(&str, &[usize])],
     dense_width: usize,
     winograd_lanes: Option<usize>,
+    int8: Int8Kernel,
 ) -> Lowered<Lowering> {
     let graph = model
         .graph
@@ -167,19 +183,12 @@ pub(crate) fn lower(
         opset,
         dense_width,
         winograd_lanes,
+        int8,
+        codes: HashMap::new(),
+        pending: HashMap::new(),
+        integer_weights: HashMap::new(),
+        grids: HashMap::new(),
     };
-    // An int8 policy's files (DESIGN.md, "Policies": precision) are QDQ graphs: said plainly
-    // rather than by the first integer initialiser the lowering would trip over.
-    if let Some(node) = graph
-        .node
-        .iter()
-        .find(|n| matches!(n.op_type.as_str(), "QuantizeLinear" | "DequantizeLinear"))
-    {
-        return unsupported(format!(
-            "{} ({}): a quantized (QDQ) graph; the compiled engine lowers float graphs",
-            node.op_type, node.name
-        ));
-    }
     for node in &graph.node {
         for input in node.input.iter().filter(|i| !i.is_empty()) {
             *lowerer.readers.entry(input.clone()).or_default() += 1;
@@ -189,6 +198,10 @@ pub(crate) fn lower(
         *lowerer.readers.entry(output.name.clone()).or_default() += 1;
     }
     for initializer in &graph.initializer {
+        if let Some(codes) = lowerer.integer_constant(initializer)? {
+            lowerer.codes.insert(initializer.name.clone(), codes);
+            continue;
+        }
         let value = lowerer.constant(initializer)?;
         lowerer.values.insert(initializer.name.clone(), value);
     }
@@ -334,9 +347,15 @@ impl Lowerer {
     }
 
     fn value(&self, name: &str) -> Lowered<&Value> {
-        self.values
-            .get(name)
-            .ok_or_else(|| Unsupported(format!("{name} is not computed before it is used")))
+        self.values.get(name).ok_or_else(|| {
+            Unsupported(
+                if self.codes.contains_key(name) || self.pending.contains_key(name) {
+                    format!("{name} is integers, which only a DequantizeLinear reads here")
+                } else {
+                    format!("{name} is not computed before it is used")
+                },
+            )
+        })
     }
 
     /// The float tensor `name`, in the standard layout (converted from NHWC if need be).
@@ -356,6 +375,7 @@ impl Lowerer {
                     to,
                     size: [h, w, c],
                 });
+                self.keep_grid(buffer, to);
                 let converted = Value::Tensor {
                     buffer: to,
                     shape: shape.clone(),
@@ -458,6 +478,10 @@ impl Lowerer {
                 let Some(tensor) = attributes.tensor("value") else {
                     return unsupported("a Constant without a tensor value");
                 };
+                if let Some(codes) = self.integer_constant(tensor)? {
+                    self.codes.insert(output.to_owned(), codes);
+                    return Ok(());
+                }
                 let value = self.constant(tensor)?;
                 self.define(output, value)?;
             }
@@ -540,6 +564,8 @@ impl Lowerer {
                 }
             }
             "LSTM" => self.lstm(node, &attributes)?,
+            "QuantizeLinear" => self.quantize_linear(node, &attributes, output)?,
+            "DequantizeLinear" => self.dequantize_linear(node, &attributes, output)?,
             other => return unsupported(format!("the operator {other} is not in the engine")),
         }
         Ok(())
