@@ -27,7 +27,7 @@ import onnxruntime as ort
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "models" / "fixtures"
-KINDS = {"CNN": ("cnn", "policy.onnx"), "H-CNN": ("hcnn", "cnn0.onnx"), "R-CNN": ("rcnn", "policy.onnx")}
+KINDS = {"CNN": ("cnn", "policy.onnx"), "CNN int8": ("cnn-int8", "policy.onnx"), "H-CNN": ("hcnn", "cnn0.onnx"), "R-CNN": ("rcnn", "policy.onnx")}
 
 
 def session(path: pathlib.Path) -> ort.InferenceSession:
@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         deciles = statistics.quantiles(times, n=10)
         figures = {"median_us": statistics.median(times), "p10_us": deciles[0], "p90_us": deciles[-1]}
         report["kinds"][kind] = figures
-        print(f"  {kind:6} median {figures['median_us']:8.1f}   p10 {figures['p10_us']:8.1f}   p90 {figures['p90_us']:8.1f}")
+        print(f"  {kind:8} median {figures['median_us']:8.1f}   p10 {figures['p10_us']:8.1f}   p90 {figures['p90_us']:8.1f}")
     if args.json:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return 0

@@ -78,6 +78,29 @@ def hidden_layers(model: onnx.ModelProto) -> list[str]:
     return chosen
 
 
+# The training episodes' seeds (`dribble record`'s training range; the test seeds start at 10000).
+TRAINING_SEEDS = range(0, 100)
+
+
+def check_calibration_dataset(train: dataset.Dataset, training: dict, directory: Path, policy: Path) -> None:
+    """Calibration sees training episodes only: the policy's own training dataset (by content
+    hash), or episodes re-recorded from its training seeds by the same teacher (recording is
+    deterministic per seed), none of them a validation seed. Anything else is refused."""
+    if training.get("dataset_hash") == train.content_hash:
+        return
+    teacher = training.get("teacher", "paper")
+    validation = set(training.get("validation_seeds", []))
+    outside = [s for s in train.seeds() if s not in TRAINING_SEEDS or s in validation]
+    if train.teacher != teacher or outside:
+        raise QuantizeError(
+            f"{directory} (content hash {train.content_hash[:12]}, teacher {train.teacher}) is neither the dataset "
+            f"{policy} was trained on ({str(training.get('dataset_hash'))[:12]}) nor episodes of its training seeds "
+            f"recorded by its teacher ({teacher})"
+            + (f": seeds {outside[:5]} are not training seeds" if outside else "")
+            + "; calibration uses training episodes only"
+        )
+
+
 def calibration_rows(train: dataset.Dataset, frames: int, seed: int, exclude_seeds: set[int]) -> list[tuple[int, int]]:
     """(episode seed, row) pairs drawn without replacement, in a fixed order."""
     rows = [(e.seed, t) for e in train.episodes if e.seed not in exclude_seeds for t in range(len(e))]
@@ -220,53 +243,64 @@ def with_precision(manifest_text: str, precision: str) -> str:
     return "\n".join(out) + "\n"
 
 
-def quantize_policy(policy: Path, train_dir: Path, out: Path, frames: int = 256, seed: int = 0) -> dict:
-    """Writes the int8 policy into `out` and returns its quantization record."""
+def write_int8_policy(policy: Path, out: Path, feeds: list[list[dict]], calibration: dict) -> dict:
+    """Quantizes each network of the float policy in `policy` on its calibration feeds (one
+    list per network, in `networks` order) into `out`, with the manifest saying
+    `precision = "int8"` and the `[quantization]` record (`calibration`: the
+    calibration_dataset_hash, _frames, _seed and _rows_sha256 fields). Returns the record."""
     policy, out = Path(policy), Path(out)
     manifest = load_manifest(policy / "policy.toml")
     if manifest.get("precision", "fp32") != "fp32":
         raise QuantizeError(f"{policy}: already {manifest['precision']}")
-    training = manifest.get("training", {})
-    train = dataset.load(train_dir)
-    if training.get("dataset_hash") != train.content_hash:
-        raise QuantizeError(
-            f"{train_dir} (content hash {train.content_hash[:12]}) is not the dataset {policy} was trained on "
-            f"({str(training.get('dataset_hash'))[:12]}): calibration uses training episodes only"
-        )
-    validation = set(training.get("validation_seeds", []))
-    rows = calibration_rows(train, frames, seed, validation)
-    kind = manifest["kind"]
-    units = manifest.get("recurrent", {}).get("units", contract.LSTM_UNITS)
+    networks = manifest["networks"]
     out.mkdir(parents=True, exist_ok=True)
     scales = []
-    networks = manifest["networks"]
-    by_seed = {e.seed: e for e in train.episodes}
-    for index, name in enumerate(networks):
-        network_rows = rows
-        if kind == "hcnn":
-            # Each expert calibrated on the frames its gate sends it, where there are some.
-            centroids = np.asarray(manifest["gating"]["centroids"], np.float32)
-            routed = [(s, t) for s, t in rows if nearest_cluster(by_seed[s].top[t], by_seed[s].bottom[t], centroids) == index]
-            network_rows = routed if len(routed) >= 16 else rows
-        feeds = feeds_for(kind, policy / name, train, network_rows, units)
+    for name, network_feeds in zip(networks, feeds, strict=True):
         with tempfile.TemporaryDirectory() as scratch:
             # The quantizer writes beside its input; work on a copy.
             source = Path(scratch) / name
             shutil.copy(policy / name, source)
-            scales.append(quantize_network(source, out / name, feeds))
+            scales.append(quantize_network(source, out / name, network_feeds))
     record = {
         "onnxruntime_version": ort.__version__,
         "float_networks_sha256": [_sha256(policy / n) for n in networks],
-        "calibration_dataset_hash": train.content_hash,
-        "calibration_frames": len(rows),
-        "calibration_seed": seed,
-        "calibration_rows_sha256": rows_hash(rows),
+        **calibration,
         "activation_scales": scales,
         "networks": networks,
     }
     text = with_precision((policy / "policy.toml").read_text(), "int8") + quantization_toml(record)
     (out / "policy.toml").write_text(text)
     return record
+
+
+def quantize_policy(policy: Path, train_dir: Path, out: Path, frames: int = 256, seed: int = 0) -> dict:
+    """Writes the int8 policy into `out` and returns its quantization record."""
+    policy, out = Path(policy), Path(out)
+    manifest = load_manifest(policy / "policy.toml")
+    training = manifest.get("training", {})
+    train = dataset.load(train_dir)
+    validation = set(training.get("validation_seeds", []))
+    check_calibration_dataset(train, training, train_dir, policy)
+    rows = calibration_rows(train, frames, seed, validation)
+    kind = manifest["kind"]
+    units = manifest.get("recurrent", {}).get("units", contract.LSTM_UNITS)
+    by_seed = {e.seed: e for e in train.episodes}
+    feeds = []
+    for index, name in enumerate(manifest["networks"]):
+        network_rows = rows
+        if kind == "hcnn":
+            # Each expert calibrated on the frames its gate sends it, where there are some.
+            centroids = np.asarray(manifest["gating"]["centroids"], np.float32)
+            routed = [(s, t) for s, t in rows if nearest_cluster(by_seed[s].top[t], by_seed[s].bottom[t], centroids) == index]
+            network_rows = routed if len(routed) >= 16 else rows
+        feeds.append(feeds_for(kind, policy / name, train, network_rows, units))
+    calibration = {
+        "calibration_dataset_hash": train.content_hash,
+        "calibration_frames": len(rows),
+        "calibration_seed": seed,
+        "calibration_rows_sha256": rows_hash(rows),
+    }
+    return write_int8_policy(policy, out, feeds, calibration)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ def test_reports_each_kind_with_ordered_quantiles(tmp_path, capsys):
     assert ort_bench.main(["--runs", "20", "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     assert report["threads"] == 1
-    assert set(report["kinds"]) == {"CNN", "H-CNN", "R-CNN"}
+    assert set(report["kinds"]) == {"CNN", "CNN int8", "H-CNN", "R-CNN"}
     for figures in report["kinds"].values():
         assert 0 < figures["p10_us"] <= figures["median_us"] <= figures["p90_us"]
     printed = capsys.readouterr().out

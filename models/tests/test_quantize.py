@@ -2,6 +2,7 @@
 layers only, a manifest the controller reads, and an int8 network that answers close to the
 float one (onnxruntime runs both)."""
 
+import hashlib
 import os
 import subprocess
 from pathlib import Path
@@ -91,9 +92,48 @@ def test_calibrating_on_another_dataset_is_refused(tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2], 5, rng)
     other = write_dataset(tmp_path / "other", [10000], 5, rng)
     policy = float_policy(tmp_path, CNN(), train)
-    with pytest.raises(QuantizeError, match="is not the dataset"):
+    with pytest.raises(QuantizeError, match="is neither the dataset.*not training seeds"):
         quantize_policy(policy, other, tmp_path / "int8")
     assert main(["--policy", str(policy), "--dataset", str(other), "--out", str(tmp_path / "x")]) == 2
+    # A validation seed of the policy (3), re-recorded, is not a training episode either.
+    validation = write_dataset(tmp_path / "validation", [3], 5, rng)
+    with pytest.raises(QuantizeError, match="not training seeds"):
+        quantize_policy(policy, validation, tmp_path / "int8")
+
+
+def test_episodes_re_recorded_from_training_seeds_by_the_same_teacher_may_calibrate(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2], 5, rng)
+    part = write_dataset(tmp_path / "part", [2], 5, rng)
+    policy = float_policy(tmp_path, CNN(), train)
+    record = quantize_policy(policy, part, tmp_path / "int8", frames=4)
+    assert record["calibration_dataset_hash"] == ds.load(part).content_hash
+    assert record["calibration_frames"] == 4
+
+
+def test_the_committed_int8_fixture_is_the_cnn_fixture_quantized_and_answers_near_it():
+    fixtures = Path(__file__).resolve().parents[1] / "fixtures"
+    manifest = tomllib.loads((fixtures / "cnn-int8" / "policy.toml").read_text())
+    float_hash = hashlib.sha256((fixtures / "cnn" / "policy.onnx").read_bytes()).hexdigest()
+    assert manifest["precision"] == "int8"
+    assert manifest["quantization"]["float_networks_sha256"] == [float_hash]
+    reference = fixtures / "cnn-int8" / "reference"
+    pixels = np.fromfile(reference / "thumbnails.u8", np.uint8).reshape(-1, 120 * 160 + 60 * 80)
+    expected = np.fromfile(reference / "commands.f32", "<f4").reshape(-1, 3)
+    scale = np.float32(contract.INPUT_SCALE)
+    int8 = ort.InferenceSession(str(fixtures / "cnn-int8" / "policy.onnx"), providers=["CPUExecutionProvider"])
+    fp32 = ort.InferenceSession(str(fixtures / "cnn" / "policy.onnx"), providers=["CPUExecutionProvider"])
+    for step, row in enumerate(pixels):
+        feed = {
+            "top": row[: 120 * 160].reshape(1, 1, 120, 160).astype(np.float32) * scale,
+            "bottom": row[120 * 160 :].reshape(1, 1, 60, 80).astype(np.float32) * scale,
+        }
+        (command,) = int8.run(["command"], feed)
+        np.testing.assert_allclose(command[0], expected[step], atol=1e-6)
+        (reference_command,) = fp32.run(["command"], feed)
+        assert np.abs(command - reference_command).max() < 0.02
+    model = onnx.load(str(fixtures / "cnn-int8" / "policy.onnx"))
+    quantized = [n for n in model.graph.node if n.op_type == "DequantizeLinear" and n.input[0].endswith("weight_quantized")]
+    assert len(quantized) == 5  # four convolutions and the hidden dense layer
 
 
 def test_the_controller_reads_the_int8_manifest(tmp_path, rng):
@@ -110,3 +150,5 @@ def test_the_controller_reads_the_int8_manifest(tmp_path, rng):
     )
     assert said.returncode == 0, said.stderr
     assert "int8" in said.stdout and "2 forward pass(es)" in said.stdout
+    # The compiled engine runs it in integers (not tract).
+    assert "int8)" in said.stdout, said.stdout
