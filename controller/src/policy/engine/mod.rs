@@ -526,6 +526,87 @@ mod tests {
         assert!(layout::Grid::new(0.0, 0).is_none() && layout::Grid::new(f32::NAN, 0).is_none());
     }
 
+    #[test]
+    fn malformed_quantization_is_refused_with_a_reason_not_a_panic() {
+        use onnx_builder::{Attribute, floats, model, node};
+        let codes = |name: &str, data_type: i32, shape: &[i64], raw: &[u8]| pb::TensorProto {
+            name: name.to_owned(),
+            dims: shape.to_vec(),
+            data_type,
+            raw_data: raw.to_vec(),
+            ..Default::default()
+        };
+        let (uint8, int8) = (2, 3);
+        let lower = |nodes, initializers| {
+            let graph = model(17, &[("x", &[1, 4])], nodes, initializers, &["y"]);
+            CompiledNetwork::lower(Path::new("q"), &graph, &[("x", &[1, 4])], Isa::Portable)
+        };
+        // Several scales for a scalar; a scale of zero; a DequantizeLinear on another grid
+        // than its QuantizeLinear; a zero point of the wrong type; raw data of the wrong
+        // length: each refused, none a panic.
+        let cases: Vec<(Vec<pb::NodeProto>, Vec<pb::TensorProto>)> = vec![
+            (
+                vec![
+                    node(
+                        "DequantizeLinear",
+                        &["w", "s2"],
+                        &["wf"],
+                        &[("axis", Attribute::Int(0))],
+                    ),
+                    node("Add", &["x", "wf"], &["y"], &[]),
+                ],
+                vec![
+                    codes("w", int8, &[], &[3]),
+                    floats("s2", &[2], &[0.5, 0.25]),
+                ],
+            ),
+            (
+                vec![
+                    node("QuantizeLinear", &["x", "zero_scale", "z"], &["q"], &[]),
+                    node("DequantizeLinear", &["q", "zero_scale", "z"], &["y"], &[]),
+                ],
+                vec![
+                    floats("zero_scale", &[], &[0.0]),
+                    codes("z", uint8, &[], &[0]),
+                ],
+            ),
+            (
+                vec![
+                    node("QuantizeLinear", &["x", "s", "z"], &["q"], &[]),
+                    node("DequantizeLinear", &["q", "t", "z"], &["y"], &[]),
+                ],
+                vec![
+                    floats("s", &[], &[0.5]),
+                    floats("t", &[], &[0.25]),
+                    codes("z", uint8, &[], &[0]),
+                ],
+            ),
+            (
+                vec![
+                    node("QuantizeLinear", &["x", "s", "z"], &["q"], &[]),
+                    node("DequantizeLinear", &["q", "s", "z"], &["y"], &[]),
+                ],
+                vec![floats("s", &[], &[0.5]), codes("z", int8, &[], &[0])],
+            ),
+            (
+                vec![
+                    node("DequantizeLinear", &["w", "s"], &["wf"], &[]),
+                    node("Add", &["x", "wf"], &["y"], &[]),
+                ],
+                vec![
+                    codes("w", int8, &[1, 4], &[1, 2, 3]),
+                    floats("s", &[], &[0.5]),
+                ],
+            ),
+        ];
+        for (i, (nodes, initializers)) in cases.into_iter().enumerate() {
+            match lower(nodes, initializers) {
+                Err(Unsupported(why)) => println!("case {i}: {why}"),
+                Ok(_) => panic!("case {i} was lowered"),
+            }
+        }
+    }
+
     /// A fixture's file and parsed model, by directory name.
     fn fixture(name: &str) -> (PathBuf, pb::ModelProto) {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))

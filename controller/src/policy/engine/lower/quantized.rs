@@ -211,7 +211,8 @@ impl Lowerer {
             None
         } else {
             let axis = normalise_axis(attributes.int("axis").unwrap_or(1), rank)?;
-            if scale_shape != [codes.shape[axis]] {
+            // A scalar has no axis to hold several scales.
+            if rank == 0 || scale_shape != [codes.shape[axis]] {
                 return unsupported(format!(
                     "scales of shape {scale_shape:?} for {:?} along axis {axis}",
                     codes.shape
