@@ -78,6 +78,18 @@ fn dimension(value: i64) -> Lowered<usize> {
         .ok_or_else(|| Unsupported(format!("size {value}")))
 }
 
+/// A constant's declared dimensions, each checked by [`dimension`]; data kept in an external
+/// file is refused.
+fn declared_shape(tensor: &pb::TensorProto) -> Lowered<Vec<usize>> {
+    if tensor.data_location == Some(1) {
+        return unsupported(format!(
+            "{} keeps its data in an external file",
+            tensor.name
+        ));
+    }
+    tensor.dims.iter().map(|&d| dimension(d)).collect()
+}
+
 fn unsupported<T>(why: impl Into<String>) -> Lowered<T> {
     Err(Unsupported(why.into()))
 }
@@ -263,17 +275,7 @@ impl Lowerer {
     fn constant(&mut self, tensor: &pb::TensorProto) -> Lowered<Value> {
         const FLOAT: i32 = 1;
         const INT64: i32 = 7;
-        if tensor.data_location == Some(1) {
-            return unsupported(format!(
-                "{} keeps its data in an external file",
-                tensor.name
-            ));
-        }
-        let shape = tensor
-            .dims
-            .iter()
-            .map(|&d| dimension(d))
-            .collect::<Lowered<Vec<usize>>>()?;
+        let shape = declared_shape(tensor)?;
         if shape.len() > MAX_RANK {
             return unsupported(format!("{} has rank {}", tensor.name, shape.len()));
         }

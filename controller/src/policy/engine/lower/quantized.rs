@@ -67,17 +67,7 @@ impl Lowerer {
             INT32 => 4,
             _ => return Ok(None),
         };
-        if tensor.data_location == Some(1) {
-            return unsupported(format!(
-                "{} keeps its data in an external file",
-                tensor.name
-            ));
-        }
-        let shape = tensor
-            .dims
-            .iter()
-            .map(|&d| dimension(d))
-            .collect::<Lowered<Vec<usize>>>()?;
+        let shape = declared_shape(tensor)?;
         let count = if shape.is_empty() {
             1
         } else {
@@ -132,6 +122,19 @@ impl Lowerer {
         }
     }
 
+    /// An activation's zero point: one uint8 constant, or 0 where the input is absent;
+    /// `None` for anything else.
+    fn uint8_zero(&self, name: Option<&String>) -> Option<u8> {
+        match name {
+            None => Some(0),
+            Some(name) => self
+                .codes
+                .get(name)
+                .filter(|codes| codes.element_type == UINT8 && codes.values.len() == 1)
+                .and_then(|codes| u8::try_from(codes.values[0]).ok()),
+        }
+    }
+
     /// The opset-21 forms (blocked quantization, other output types) are refused.
     fn plain_quantization(attributes: &Attributes<'_>) -> Lowered<()> {
         if attributes.int("block_size").is_some_and(|b| b != 0) {
@@ -156,15 +159,9 @@ impl Lowerer {
         let input = |i: usize| node.input.get(i).filter(|s| !s.is_empty());
         let x = input(0).ok_or_else(|| Unsupported("no input".into()))?;
         let scale = self.single_float(input(1).ok_or_else(|| Unsupported("no scale".into()))?)?;
-        let zero = match input(2) {
-            None => 0,
-            Some(name) => match self.codes.get(name) {
-                Some(codes) if codes.element_type == UINT8 && codes.values.len() == 1 => {
-                    codes.values[0] as u8
-                }
-                _ => return unsupported("a zero point that is not one uint8"),
-            },
-        };
+        let zero = self
+            .uint8_zero(input(2))
+            .ok_or_else(|| Unsupported("a zero point that is not one uint8".into()))?;
         let Value::Tensor { boolean: false, .. } = self.value(x)? else {
             return unsupported("quantizing something that is not a float tensor");
         };
@@ -186,15 +183,8 @@ impl Lowerer {
         let scale_name = input(1).ok_or_else(|| Unsupported("no scale".into()))?;
         if let Some((source, grid)) = self.pending.get(q).cloned() {
             let scale = self.single_float(scale_name)?;
-            let zero = match input(2) {
-                None => Some(0),
-                Some(name) => self
-                    .codes
-                    .get(name)
-                    .filter(|codes| codes.element_type == UINT8 && codes.values.len() == 1)
-                    .map(|codes| codes.values[0]),
-            };
-            if scale.to_bits() != grid.scale().to_bits() || zero != Some(i64::from(grid.zero())) {
+            let zero = self.uint8_zero(input(2));
+            if scale.to_bits() != grid.scale().to_bits() || zero != Some(grid.zero()) {
                 return unsupported("a DequantizeLinear on another grid than its QuantizeLinear");
             }
             return self.snap(&source, q, grid, output);
