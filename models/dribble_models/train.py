@@ -22,7 +22,8 @@ demonstrations and exports a model directory the controller loads.
 - DAgger: `--add-dataset DIR` (repeatable) adds every episode of a policy-driven dataset
   (`dribble record --driver POLICY --label-with expert`: the expert's labels for the states
   the policy visited) to the training rows; validation stays on `--dataset`'s held-out
-  episodes. `--init-from CHECKPOINT` starts from another run's kept weights.
+  episodes. `--init-from CHECKPOINT|MODEL` starts from another run's kept weights, or from a
+  shipped model's (dribble_models.shipped_weights).
 - Resumable: a checkpoint after every epoch (`--checkpoint-dir`, under ~/.cache/dribble by
   default); running the same command again continues where it stopped. Every random choice
   is seeded (`--seed`), per epoch, so a resumed run is the run it would have been.
@@ -37,6 +38,7 @@ import math
 import os
 import sys
 import time
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,6 +53,7 @@ from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
 from .networks import CNN, HCNN, RCNN, ModalCNN
+from .shipped_weights import ShippedWeightsError, is_shipped_model, load_shipped_weights, manifest_of
 from .stalls import CutReport, StallRule, cut_all
 
 SCALE = np.float32(contract.INPUT_SCALE)
@@ -314,7 +317,13 @@ class Training:
         self.wall_s = 0.0
 
     def start_from(self, path: Path) -> None:
-        """Takes the kept (best) weights of another run's checkpoint as the start."""
+        """Takes the kept (best) weights of another run's checkpoint, or a shipped model's, as the start."""
+        if is_shipped_model(path):
+            try:
+                load_shipped_weights(self.model, path, self.kind)
+            except ShippedWeightsError as error:
+                raise DatasetError(f"--init-from: {error}") from error
+            return
         if not Path(path).is_file():
             raise DatasetError(f"--init-from {path}: no such checkpoint")
         state = torch.load(path, weights_only=False)
@@ -350,7 +359,7 @@ class Training:
             # Only where it differs from the paper's one output, so that older checkpoints resume.
             **({"modes": a.modes} if a.modes != 1 else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
-            **({"init_from": file_sha256(a.init_from)} if a.init_from is not None else {}),
+            **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
         }
 
     def save(self, path: Path) -> None:
@@ -534,6 +543,14 @@ def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def start_sha256(path: Path) -> str:
+    """The hash that names a start: the checkpoint file's, or a shipped model's network file's."""
+    if is_shipped_model(path):
+        manifest = manifest_of(path)
+        return file_sha256(manifest.parent / tomllib.loads(manifest.read_text())["networks"][0])
+    return file_sha256(path)
+
+
 def notes_of(args: argparse.Namespace) -> str:
     parts = [
         f"Adam lr {args.lr}",
@@ -553,7 +570,7 @@ def notes_of(args: argparse.Namespace) -> str:
     if args.add_dataset and args.cut_stalls is not None:
         parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:
-        parts.append(f"started from the kept weights of {args.init_from} (sha256 {file_sha256(args.init_from)[:12]})")
+        parts.append(f"started from the kept weights of {args.init_from} (sha256 {start_sha256(args.init_from)[:12]})")
     parts.append("train_error over every episode of the training dataset (validation ones too)")
     return "; ".join(parts)
 
@@ -569,7 +586,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, required=True, help="model directory to write (policy.toml, ONNX, loss curve, scores)")
     parser.add_argument("--add-dataset", type=Path, action="append", default=[], help="more training data, every episode of it (DAgger's policy-driven, expert-labelled rounds); repeatable")
     parser.add_argument("--cut-stalls", type=float, metavar="SECONDS", help="in the --add-dataset rounds, drop the rows of a stall (robot and ball still) after its first SECONDS (dribble_models.stalls explains why)")
-    parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote) instead of random ones")
+    parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote), or from a shipped one-network float model (its directory or policy.toml: dribble_models.shipped_weights), instead of random ones")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")
