@@ -634,6 +634,8 @@ mod tests {
             assert_eq!(count(|s| matches!(s, Step::QuantizedDense(_))), 1, "{isa}");
             assert_eq!(count(|s| matches!(s, Step::Dense { .. })), 1, "{isa}");
             assert_eq!(count(|s| matches!(s, Step::Conv { .. })), 0, "{isa}");
+            // Every max-pool folded into the convolution before it.
+            assert_eq!(count(|s| matches!(s, Step::MaxPool { .. })), 0, "{isa}");
             // The conv outputs' grids go into the convolutions; the inputs, the pooled maps
             // and the features have pairs of their own.
             assert_eq!(count(|s| matches!(s, Step::SnapToGrid { .. })), 5, "{isa}");
@@ -644,6 +646,82 @@ mod tests {
                     println!("{isa}: largest difference from tract {largest_difference}");
                 }
                 other => panic!("{isa}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn a_max_pool_folded_into_an_int8_convolution_gives_the_separate_pools_numbers_bit_for_bit() {
+        // The same QDQ file twice: as it is (each pool folded into its convolution) and with
+        // the pools' inputs made graph outputs too (a second reader: no fold, a MaxPool step
+        // of its own over the epilogue's floats). Every command must be the same bits.
+        // The pools' outputs are graph outputs in both, so that they are compared too.
+        let (path, mut folded) = fixture("cnn-int8");
+        let pools = |proto: &pb::ModelProto| -> Vec<(String, String)> {
+            let graph = proto.graph.as_ref().expect("graph");
+            let pools = graph.node.iter().filter(|n| n.op_type == "MaxPool");
+            pools
+                .map(|n| (n.input[0].clone(), n.output[0].clone()))
+                .collect()
+        };
+        let names = pools(&folded);
+        assert_eq!(names.len(), 4);
+        let mut outputs = vec!["command".to_owned()];
+        let graph = folded.graph.as_mut().expect("graph");
+        for (_, pooled) in &names {
+            graph.output.push(onnx_builder::value_info(pooled, None));
+            outputs.push(pooled.clone());
+        }
+        let mut separate = folded.clone();
+        let graph = separate.graph.as_mut().expect("graph");
+        for (input, _) in &names {
+            graph.output.push(onnx_builder::value_info(input, None));
+        }
+        let mut rng = 0x2545_f491_u32;
+        for isa in Isa::available() {
+            let mut networks = [&folded, &separate].map(|proto| {
+                CompiledNetwork::lower(&path, proto, &CNN_INPUTS, isa)
+                    .unwrap_or_else(|why| panic!("{isa}: {}", why.0))
+            });
+            let pools = networks.each_ref().map(|n| {
+                n.steps
+                    .iter()
+                    .filter(|s| matches!(s, Step::MaxPool { .. }))
+                    .count()
+            });
+            assert_eq!(pools, [0, 4], "{isa}");
+            for _ in 0..3 {
+                let mut commands = Vec::new();
+                let thumbnails: Vec<f32> = (0..120 * 160 + 60 * 80)
+                    .map(|_| {
+                        rng ^= rng << 13;
+                        rng ^= rng >> 17;
+                        rng ^= rng << 5;
+                        f32::from((rng >> 24) as u8) / 255.0
+                    })
+                    .collect();
+                for network in &mut networks {
+                    let (top, bottom) = thumbnails.split_at(120 * 160);
+                    network.input_mut("top").expect("top").copy_from_slice(top);
+                    network
+                        .input_mut("bottom")
+                        .expect("bottom")
+                        .copy_from_slice(bottom);
+                    network.run();
+                    let bits = outputs.iter().flat_map(|name| {
+                        network
+                            .output(name)
+                            .expect("output")
+                            .iter()
+                            .map(|v| v.to_bits())
+                    });
+                    commands.push(bits.collect::<Vec<_>>());
+                }
+                assert_eq!(
+                    commands[0].len(),
+                    3 + 7 * 10 * 32 + 4 * 5 * 16 + 30 * 40 * 16 + 15 * 20 * 8
+                );
+                assert_eq!(commands[0], commands[1], "{isa}");
             }
         }
     }

@@ -5,7 +5,7 @@
 
 use core::mem;
 
-use super::kernels::int8::{Int8Kernel, QuadPanels, Segments, Window};
+use super::kernels::int8::{Int8Kernel, QuadPanels, Window};
 use super::kernels::winograd;
 use super::kernels::{Kernels, portable};
 use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Grid, Strided};
@@ -101,10 +101,29 @@ pub(crate) struct QuantizedConv {
     /// point; [`Window::slack`] bytes after it), where a window's rows start, and one
     /// pixel's sums.
     pub codes: Vec<u8>,
+    /// Where a gathered window is copied ([`Window::scratch`]).
+    pub gathered: Vec<u8>,
     pub starts: Vec<usize>,
     pub sums: Vec<i32>,
-    /// NHWC floats.
+    /// NHWC floats: the pooled map where `pool` is set, else the convolution's.
     pub out: BufferId,
+    pub pool: Option<QuantizedPool>,
+}
+
+/// A max-pool folded into the int8 convolution before it. Each pooled output is the epilogue
+/// of the largest sum in its window: the epilogue is non-decreasing in the sum (positive
+/// scales, then the grid and the ReLU, both monotonic; the lowering folds only then), so
+/// taking the largest sum first gives the very numbers a separate pool of the epilogue's
+/// floats gives, with one epilogue per pooled output instead of one per pixel, and no pixel
+/// computed that no window reads.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct QuantizedPool {
+    pub kernel: [usize; 2],
+    pub stride: [usize; 2],
+    /// The pooled map's height and width.
+    pub out: [usize; 2],
+    /// Scratch: one pooled output's largest sums, per channel.
+    pub largest: Vec<i32>,
 }
 
 impl core::fmt::Debug for QuantizedConv {
@@ -113,11 +132,16 @@ impl core::fmt::Debug for QuantizedConv {
         let [oh, ow] = self.out_size;
         write!(
             f,
-            "QuantizedConv {{ {kh}x{kw}x{} -> {}, {oh}x{ow}, {} }}",
+            "QuantizedConv {{ {kh}x{kw}x{} -> {}, {oh}x{ow}, {}",
             self.window.channels,
             self.weights.outputs(),
             self.kernel.name()
-        )
+        )?;
+        if let Some(pool) = &self.pool {
+            let ([ph, pw], [sh, sw], [h, w]) = (pool.kernel, pool.stride, pool.out);
+            write!(f, ", max-pool {ph}x{pw} stride {sh}x{sw} -> {h}x{w}")?;
+        }
+        write!(f, " }}")
     }
 }
 
@@ -293,8 +317,14 @@ impl Step {
             Self::Dense { weights, rows, .. } => rows * weights.inputs() * weights.outputs(),
             Self::Lstm { weights, .. } => weights.inputs() * weights.outputs(),
             Self::QuantizedConv(conv) => {
-                let [oh, ow] = conv.out_size;
-                oh * ow * conv.window.kernel[0] * conv.window.row() * conv.epilogue.bias.len()
+                let pixels = conv.pool.as_ref().map_or(conv.out_size, |pool| {
+                    [pool.out[0] * pool.kernel[0], pool.out[1] * pool.kernel[1]]
+                });
+                pixels[0]
+                    * pixels[1]
+                    * conv.window.kernel[0]
+                    * conv.window.row()
+                    * conv.epilogue.bias.len()
             }
             Self::QuantizedDense(dense) => {
                 dense.rows * dense.weights.inputs() * dense.weights.outputs()
@@ -550,9 +580,11 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
         kernel,
         epilogue,
         codes,
+        gathered,
         starts,
         sums,
         out,
+        pool,
     } = conv;
     let (h, w, c) = (*h, *w, *c);
     let map = &buffers[*from];
@@ -572,16 +604,38 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
         }
     }
     let outputs = sums.len();
-    with_output(buffers, *out, |target, _| {
-        let pixels = target.chunks_exact_mut(outputs).take(*oh * *ow);
-        for (pixel, values) in pixels.enumerate() {
-            window.starts([pixel / *ow, pixel % *ow], starts);
-            let segments = Segments {
-                starts,
-                quads: window.quads(),
-            };
-            kernel.product(codes, segments, weights, sums);
-            epilogue.apply(sums, values);
+    let mut product = |pixel: [usize; 2], sums: &mut [i32]| {
+        window.starts(pixel, starts);
+        window.product(*kernel, codes, starts, gathered, weights, sums);
+    };
+    with_output(buffers, *out, |target, _| match pool {
+        None => {
+            let pixels = target.chunks_exact_mut(outputs).take(*oh * *ow);
+            for (pixel, values) in pixels.enumerate() {
+                product([pixel / *ow, pixel % *ow], sums);
+                epilogue.apply(sums, values);
+            }
+        }
+        Some(QuantizedPool {
+            kernel: [kh, kw],
+            stride: [sh, sw],
+            out: [ph, pw],
+            largest,
+        }) => {
+            let cells = target.chunks_exact_mut(outputs).take(*ph * *pw);
+            for (cell, values) in cells.enumerate() {
+                let [y, x] = [cell / *pw * *sh, cell % *pw * *sw];
+                largest.fill(i32::MIN);
+                for dy in 0..*kh {
+                    for dx in 0..*kw {
+                        product([y + dy, x + dx], sums);
+                        for (most, &sum) in largest.iter_mut().zip(sums.iter()) {
+                            *most = (*most).max(sum);
+                        }
+                    }
+                }
+                epilogue.apply(largest, values);
+            }
         }
     });
 }

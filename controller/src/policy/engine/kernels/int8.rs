@@ -18,10 +18,11 @@
 //! skips zero inputs.
 //!
 //! The QDQ lowering (`lower/quantized.rs`) lays the weights out; the plan's int8 steps call
-//! [`Int8Kernel::dense`] once per dense row and [`Int8Kernel::product`] once per convolution
+//! [`Int8Kernel::dense`] once per dense row and [`Window::product`] once per convolution
 //! output pixel, whose window is read in place from the padded map, one segment per kernel
-//! row ([`Window`], [`Segments`]): no copy of the window (its 5-byte rows made `memcpy`
-//! calls the first layer's 4800 pixels could not afford on the V5).
+//! row ([`Segments`]), or, for the cameras' one-channel layers, gathered with one 8-byte
+//! load and store per row (a `memcpy` call per 5-byte row was more than the V5's first
+//! layer could afford; rows rounded up to quads waste 3 of every 10).
 // The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
 #![allow(unsafe_code)]
 
@@ -410,37 +411,107 @@ impl Int8Kernel {
 }
 
 /// The shape of an int8 convolution's input and window: `codes` is the zero-bordered map
-/// `[padded_h][padded_w][c]` (the border holds the zero point, the integer of 0.0), and the
-/// weights' rows are `[ky][kx * c, rounded up to whole quads]`: each kernel row of a window
-/// is read in place, as one segment ([`Segments`]).
+/// `[padded_h][padded_w][c]` (the border holds the zero point, the integer of 0.0). A window
+/// is read one of two ways, chosen by [`Window::new`]:
+/// - in place: each kernel row is one segment ([`Segments`]), the weights' rows are
+///   `[ky][kx * c, rounded up to whole quads]`;
+/// - gathered, where kernel rows are short and rounding each up to whole quads would waste
+///   quads (the cameras' one-channel 5x5 layers: rows of 5 bytes take 2 quads each, 10 a
+///   window, where the window's 25 bytes fill 7): the rows are copied one after the other
+///   into one run of bytes, 8 bytes a row (one load and one store; a row's extra bytes are
+///   overwritten by the next row, the last one's meet zero weights), and the weights are
+///   `[ky * kx * c, rounded up to whole quads]`. The copy costs about what one quad does.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Window {
     pub padded_width: usize,
     pub channels: usize,
     pub kernel: [usize; 2],
     pub stride: [usize; 2],
+    pub gather: bool,
 }
 
+/// The bytes one gathered row copies.
+const GATHERED_ROW: usize = 8;
+
 impl Window {
+    /// A window read the cheaper way: gathered where that takes fewer quads.
+    pub(crate) fn new(
+        padded_width: usize,
+        channels: usize,
+        kernel: [usize; 2],
+        stride: [usize; 2],
+    ) -> Self {
+        let mut window = Self {
+            padded_width,
+            channels,
+            kernel,
+            stride,
+            gather: false,
+        };
+        let gathered_quads = (kernel[0] * window.row()).div_ceil(4);
+        window.gather = window.row() <= GATHERED_ROW && gathered_quads < kernel[0] * window.quads();
+        window
+    }
+
     /// The bytes of one kernel row of a window.
     pub(crate) fn row(&self) -> usize {
         self.kernel[1] * self.channels
     }
 
-    /// Quads per kernel row, rounded up.
+    /// Quads per kernel row read in place, rounded up.
     pub(crate) fn quads(&self) -> usize {
         self.row().div_ceil(4)
     }
 
-    /// The weights' inputs: every kernel row rounded up to whole quads.
+    /// The weights' inputs: every kernel row rounded up to whole quads, or (gathered) the
+    /// whole window rounded up once.
     pub(crate) fn padded_len(&self) -> usize {
-        self.kernel[0] * self.quads() * 4
+        if self.gather {
+            (self.kernel[0] * self.row()).div_ceil(4) * 4
+        } else {
+            self.kernel[0] * self.quads() * 4
+        }
     }
 
     /// How many bytes past the map a bottom-right window's last row reads (rounding up to
-    /// quads): the codes buffer holds them too.
+    /// quads, or the 8 bytes a gathered row copies): the codes buffer holds them too.
     pub(crate) fn slack(&self) -> usize {
-        self.quads() * 4 - self.row()
+        if self.gather {
+            GATHERED_ROW - self.row()
+        } else {
+            self.quads() * 4 - self.row()
+        }
+    }
+
+    /// The scratch a gathered window is copied into (empty where windows are read in place).
+    pub(crate) fn scratch(&self) -> Vec<u8> {
+        if self.gather {
+            vec![
+                0;
+                self.padded_len()
+                    .max((self.kernel[0] - 1) * self.row() + GATHERED_ROW)
+            ]
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// `rows`, `[out][ky][kx * c]`, laid out as the kernels read this window: each output's
+    /// [`Self::padded_len`] weights, zero where they meet padding.
+    pub(crate) fn weights(&self, rows: &[i8], outputs: usize) -> Vec<i8> {
+        let (row, kh) = (self.row(), self.kernel[0]);
+        let step = if self.gather { row } else { self.quads() * 4 };
+        let mut laid_out = vec![0; outputs * self.padded_len()];
+        for (o, weights) in rows
+            .chunks_exact((kh * row).max(1))
+            .take(outputs)
+            .enumerate()
+        {
+            for (ky, kernel_row) in weights.chunks_exact(row.max(1)).enumerate() {
+                laid_out[o * self.padded_len() + ky * step..][..row].copy_from_slice(kernel_row);
+            }
+        }
+        laid_out
     }
 
     /// Where each kernel row of output pixel `(y, x)`'s window starts in the map.
@@ -449,6 +520,37 @@ impl Window {
         for (ky, start) in starts.iter_mut().enumerate() {
             *start = ((y * self.stride[0] + ky) * self.padded_width + x * self.stride[1])
                 * self.channels;
+        }
+    }
+
+    /// `sums = W window` of the window whose rows start at `starts`, read as this window is
+    /// ([`Self::new`]); `scratch` is [`Self::scratch`].
+    #[inline(always)]
+    pub(crate) fn product(
+        &self,
+        kernel: Int8Kernel,
+        codes: &[u8],
+        starts: &[usize],
+        scratch: &mut [u8],
+        weights: &QuadPanels,
+        sums: &mut [i32],
+    ) {
+        if self.gather {
+            let row = self.row();
+            for (ky, &start) in starts.iter().enumerate() {
+                let mut bytes = [0u8; GATHERED_ROW];
+                bytes.copy_from_slice(&codes[start..start + GATHERED_ROW]);
+                scratch[ky * row..ky * row + GATHERED_ROW].copy_from_slice(&bytes);
+            }
+            // The bytes after the window (the last row's extra bytes, or an earlier pixel's)
+            // meet zero weights: they are left as they are.
+            kernel.dense(&scratch[..self.padded_len()], weights, sums);
+        } else {
+            let segments = Segments {
+                starts,
+                quads: self.quads(),
+            };
+            kernel.product(codes, segments, weights, sums);
         }
     }
 }
@@ -630,62 +732,56 @@ mod tests {
             (9, 11, 1, 16, [5, 5], [2, 2]),
             (7, 7, 8, 33, [3, 3], [1, 1]),
         ] {
-            let window = Window {
-                padded_width: pw,
-                channels: c,
-                kernel: [kh, kw],
-                stride,
-            };
-            // The map's codes, then the slack a last window row reads past it.
-            let mut codes: Vec<u8> = (0..ph * pw * c).map(|_| rng.next() as u8).collect();
-            codes.extend((0..window.slack()).map(|_| rng.next() as u8));
-            let rows: Vec<i8> = (0..oc * kh * kw * c)
-                .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
-                .collect();
-            // [oc][ky][kx * c] -> rows padded to whole quads, with zero weights.
-            let (row, padded_row) = (window.row(), window.quads() * 4);
-            let mut padded = vec![0i8; oc * window.padded_len()];
-            for o in 0..oc {
-                for ky in 0..kh {
-                    let from = &rows[(o * kh + ky) * row..][..row];
-                    padded[(o * kh + ky) * padded_row..][..row].copy_from_slice(from);
-                }
-            }
-            let (oh, ow) = ((ph - kh) / stride[0] + 1, (pw - kw) / stride[1] + 1);
-            for kernel in [
-                Int8Kernel::PORTABLE,
-                Int8Kernel::ssse3(),
-                Int8Kernel::avx2(),
-            ] {
-                let weights = QuadPanels::new(&padded, oc, window.padded_len(), kernel.width())
-                    .expect("in range");
-                let mut starts = vec![0; kh];
-                let mut sums = vec![0i32; oc];
-                for (y, x) in (0..oh).flat_map(|y| (0..ow).map(move |x| (y, x))) {
-                    window.starts([y, x], &mut starts);
-                    let segments = Segments {
-                        starts: &starts,
-                        quads: window.quads(),
-                    };
-                    kernel.product(&codes, segments, &weights, &mut sums);
-                    for (o, &sum) in sums.iter().enumerate() {
-                        let mut expected = 0i64;
-                        for ky in 0..kh {
-                            for kx in 0..kw {
-                                for i in 0..c {
-                                    let pixel =
-                                        ((y * stride[0] + ky) * pw + x * stride[1] + kx) * c;
-                                    let w = rows[((o * kh + ky) * kw + kx) * c + i];
-                                    expected += i64::from(codes[pixel + i]) * i64::from(w);
+            let chosen = Window::new(pw, c, [kh, kw], stride);
+            // The one-channel 5x5 window is gathered, the others read in place.
+            assert_eq!(chosen.gather, c == 1, "{c} channels");
+            // Both ways where both can be: a gathered row copies 8 bytes.
+            let ways = [false, true].map(|gather| Window { gather, ..chosen });
+            for window in ways.into_iter().filter(|w| !w.gather || w.row() <= 8) {
+                // The map's codes, then the slack a last window row reads past it.
+                let mut codes: Vec<u8> = (0..ph * pw * c).map(|_| rng.next() as u8).collect();
+                codes.extend((0..window.slack()).map(|_| rng.next() as u8));
+                let rows: Vec<i8> = (0..oc * kh * kw * c)
+                    .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
+                    .collect();
+                let laid_out = window.weights(&rows, oc);
+                let (oh, ow) = ((ph - kh) / stride[0] + 1, (pw - kw) / stride[1] + 1);
+                for kernel in [
+                    Int8Kernel::PORTABLE,
+                    Int8Kernel::ssse3(),
+                    Int8Kernel::avx2(),
+                ] {
+                    let weights =
+                        QuadPanels::new(&laid_out, oc, window.padded_len(), kernel.width())
+                            .expect("in range");
+                    let mut starts = vec![0; kh];
+                    let mut sums = vec![0i32; oc];
+                    // Stale bytes in the scratch must not matter.
+                    let mut scratch = window.scratch();
+                    scratch.fill(0xa5);
+                    for (y, x) in (0..oh).flat_map(|y| (0..ow).map(move |x| (y, x))) {
+                        window.starts([y, x], &mut starts);
+                        window.product(kernel, &codes, &starts, &mut scratch, &weights, &mut sums);
+                        for (o, &sum) in sums.iter().enumerate() {
+                            let mut expected = 0i64;
+                            for ky in 0..kh {
+                                for kx in 0..kw {
+                                    for i in 0..c {
+                                        let pixel =
+                                            ((y * stride[0] + ky) * pw + x * stride[1] + kx) * c;
+                                        let w = rows[((o * kh + ky) * kw + kx) * c + i];
+                                        expected += i64::from(codes[pixel + i]) * i64::from(w);
+                                    }
                                 }
                             }
+                            assert_eq!(
+                                i64::from(sum),
+                                expected,
+                                "{}, gathered {}: ({y}, {x}) output {o}",
+                                kernel.name(),
+                                window.gather
+                            );
                         }
-                        assert_eq!(
-                            i64::from(sum),
-                            expected,
-                            "{}: ({y}, {x}) output {o}",
-                            kernel.name()
-                        );
                     }
                 }
             }

@@ -174,6 +174,16 @@ impl Lowerer {
             (w - kernel[1]) / strides[1] + 1,
         ];
         let to = self.buffer(elements(&[out[0], out[1], c])?)?;
+        if let Some(index) = self.fold_pool_into_int8_conv(
+            input,
+            buffer,
+            [[kernel[0], kernel[1]], [strides[0], strides[1]], out],
+            to,
+        ) {
+            self.producer.insert(output.to_owned(), index);
+            self.keep_grid(buffer, to);
+            return self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
+        }
         // A pool right after a convolution that only it reads is folded into that step
         // (`ConvPool`), where its windows do not overlap vertically.
         let fold = match self.producer.get(input) {
@@ -270,5 +280,45 @@ impl Lowerer {
             },
         );
         self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc)
+    }
+
+    /// Folds a max-pool into the int8 convolution that made `buffer` (`QuantizedPool`) where
+    /// only the pool reads it, its windows do not overlap, and the epilogue is monotonic
+    /// (every scale positive and finite, every bias finite: then the largest sum's epilogue
+    /// is the largest epilogue). The convolution then writes the pooled map into `to`, and
+    /// its full-size output is given back. The convolution's step where it folded.
+    fn fold_pool_into_int8_conv(
+        &mut self,
+        input: &str,
+        buffer: BufferId,
+        [kernel, strides, out]: [[usize; 2]; 3],
+        to: BufferId,
+    ) -> Option<usize> {
+        let &index = self.producer.get(input)?;
+        if !self.single_reader(input) || strides[0] < kernel[0] || strides[1] < kernel[1] {
+            return None;
+        }
+        let Step::QuantizedConv(conv) = &mut self.steps[index] else {
+            return None;
+        };
+        let monotonic = conv
+            .epilogue
+            .scales
+            .iter()
+            .all(|s| s.is_finite() && *s > 0.0)
+            && conv.epilogue.bias.iter().all(|b| b.is_finite());
+        if conv.out != buffer || conv.pool.is_some() || !monotonic {
+            return None;
+        }
+        conv.pool = Some(QuantizedPool {
+            kernel,
+            stride: strides,
+            out,
+            largest: vec![0; conv.sums.len()],
+        });
+        conv.out = to;
+        let full = std::mem::take(&mut self.buffers[buffer]);
+        self.allocated = self.allocated.saturating_sub(full.len());
+        Some(index)
     }
 }

@@ -29,7 +29,7 @@ use tract_onnx::pb;
 use super::kernels::int8::Int8Kernel;
 use super::kernels::winograd;
 use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Grid, MAX_RANK, Strided};
-use super::plan::{BinaryOp, ConvPool, ReduceOp, Step, WinogradConv};
+use super::plan::{BinaryOp, ConvPool, QuantizedPool, ReduceOp, Step, WinogradConv};
 
 // The operators by family, each an `impl Lowerer` of its own; this file holds the lowering's
 // state, the graph walk that dispatches on each node, and what the families share.

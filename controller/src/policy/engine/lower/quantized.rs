@@ -356,30 +356,26 @@ impl Lowerer {
         let Some(scales) = weights.scales_along(0, oc) else {
             return Ok(None);
         };
-        let window = Window {
-            padded_width: padded[1],
-            channels: c,
-            kernel: [kh, kw],
-            stride: strides,
-        };
+        let window = Window::new(padded[1], c, [kh, kw], strides);
         let inputs = window.padded_len();
         if inputs > MAX_INT8_INPUTS {
             return Ok(None);
         }
-        // [oc][c][ky][kx] -> [oc][ky][kx][c], the window's order, each kernel row rounded up
-        // to whole quads with zero weights (what they meet belongs to the next pixel).
-        let padded_row = window.quads() * 4;
-        let mut rows = vec![0i8; elements(&[oc, inputs])?];
+        // [oc][c][ky][kx] -> [oc][ky][kx][c], the window's order, then laid out as the
+        // window is read (zero weights where they meet padding or the next pixel's bytes).
+        let window_len = elements(&[kh, kw, c])?;
+        let mut ordered = vec![0i8; elements(&[oc, window_len])?];
         for o in 0..oc {
             for i in 0..c {
                 for y in 0..kh {
                     for x in 0..kw {
-                        rows[o * inputs + y * padded_row + x * c + i] =
+                        ordered[o * window_len + (y * kw + x) * c + i] =
                             weights.values[((o * c + i) * kh + y) * kw + x];
                     }
                 }
             }
         }
+        let rows = window.weights(&ordered, oc);
         let Ok(panels) = QuadPanels::new(&rows, oc, inputs, self.int8.width()) else {
             return Ok(None);
         };
@@ -398,9 +394,11 @@ impl Lowerer {
             kernel: self.int8,
             epilogue,
             codes: vec![grid.zero(); padded_len + window.slack()],
+            gathered: window.scratch(),
             starts: vec![0; kh],
             sums: vec![0; oc],
             out: out_buffer,
+            pool: None,
         }))
     }
 
