@@ -46,11 +46,11 @@ def is_shipped_model(path: Path) -> bool:
     return (path.is_dir() and (path / "policy.toml").is_file()) or path.name == "policy.toml"
 
 
-def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
-    """Copies the float weights of the model at `path` into `model`, strictly (module doc)."""
+def network_of(path: Path, kind: str | None = None) -> Path:
+    """The one float network file of the model at `path` (of `kind`, where given), or why not."""
     manifest_path = manifest_of(path)
     manifest = tomllib.loads(manifest_path.read_text())
-    if manifest.get("kind") != kind:
+    if kind is not None and manifest.get("kind") != kind:
         raise ShippedWeightsError(f"{manifest_path}: a {manifest.get('kind')} model, this run trains a {kind}")
     if manifest.get("precision", "float32") != "float32":
         raise ShippedWeightsError(f"{manifest_path}: precision {manifest['precision']}; only float models can be trained on")
@@ -60,7 +60,14 @@ def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
             f"{manifest_path}: {len(networks)} networks; only one-network models map onto one PyTorch module "
             "(start from the training checkpoint instead)"
         )
-    graph = onnx.load(str(manifest_path.parent / networks[0])).graph
+    return manifest_path.parent / networks[0]
+
+
+def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
+    """Copies the float weights of the model at `path` into `model`, strictly (module doc)."""
+    network = network_of(path, kind)
+    manifest_path = manifest_of(path)
+    graph = onnx.load(str(network)).graph
     initializers = {tensor.name: numpy_helper.to_array(tensor) for tensor in graph.initializer}
     state = model.state_dict()
     missing = sorted(set(state) - set(initializers))

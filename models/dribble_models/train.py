@@ -38,7 +38,6 @@ import math
 import os
 import sys
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,7 +52,7 @@ from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
 from .networks import CNN, HCNN, RCNN, ModalCNN
-from .shipped_weights import ShippedWeightsError, is_shipped_model, load_shipped_weights, manifest_of
+from .shipped_weights import ShippedWeightsError, is_shipped_model, load_shipped_weights, network_of
 from .stalls import CutReport, StallRule, cut_all
 
 SCALE = np.float32(contract.INPUT_SCALE)
@@ -545,10 +544,7 @@ def file_sha256(path: Path) -> str:
 
 def start_sha256(path: Path) -> str:
     """The hash that names a start: the checkpoint file's, or a shipped model's network file's."""
-    if is_shipped_model(path):
-        manifest = manifest_of(path)
-        return file_sha256(manifest.parent / tomllib.loads(manifest.read_text())["networks"][0])
-    return file_sha256(path)
+    return file_sha256(network_of(path) if is_shipped_model(path) else path)
 
 
 def notes_of(args: argparse.Namespace) -> str:
