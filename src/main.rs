@@ -7,7 +7,9 @@ mod eval_command;
 mod eval_jobs;
 mod foxglove_episodes;
 mod goal_rate;
+mod gym_server_command;
 mod inspect_command;
+mod merge_command;
 mod plot_command;
 mod plot_image;
 mod record_command;
@@ -69,6 +71,14 @@ enum Command {
     /// hours; samples its memory, open files and command latency every second into a CSV,
     /// and fails on memory growth, missed deadlines or a lost command.
     Soak(soak_command::SoakArgs),
+    /// Serves episodes step by step on standard input and output for the Gymnasium
+    /// environment `dribble/NaoDribble-v0` (models/dribble_models/gym_env.py): an
+    /// observation (both thumbnails) whenever the controller would compute a command, the
+    /// action back as that command. Not meant to be run by hand.
+    GymServer(gym_server_command::GymServerArgs),
+    /// Puts the shares of one recording or one evaluation, played apart (on a Ray cluster:
+    /// `python -m dribble_models.cluster`), back together as one serial run writes them.
+    Merge(merge_command::MergeArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -83,5 +93,7 @@ fn main() -> anyhow::Result<()> {
         Command::Inspect(args) => inspect_command::run(&args),
         Command::Score(args) => score_command::run(&args),
         Command::Soak(args) => soak_command::run(&args),
+        Command::GymServer(args) => gym_server_command::run(&args),
+        Command::Merge(args) => merge_command::run(&args),
     }
 }

@@ -153,7 +153,7 @@ def failure_analysis(rows: list[dict]) -> str:
 
 #: The rows of the committed table, in order: the paper's setup, then what goes beyond it.
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
-        "cnn-observable", "hcnn-observable", "rcnn-observable", "cnn-modal-observable", "dagger-observable")
+        "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable", "dagger-observable")
 
 
 def selection_runs(directory: Path) -> str:
@@ -239,7 +239,14 @@ def main(argv: list[str] | None = None) -> int:
         tables = generated_tables(rows)
         # Tables other scripts write: the DAgger iterations' (scripts/dagger, dagger_report)
         # and the teachers' (scripts/teachers).
-        written = {"dagger": ("dagger", "dagger.md"), "teachers": ("..", "teachers", "teachers.md")}
+        written = {
+            "dagger": ("dagger", "dagger.md"),
+            "teachers": ("..", "teachers", "teachers.md"),
+            # Episodes per hour serial and on Ray (dribble_models.cluster_throughput), and the
+            # Gymnasium environment against `dribble eval` (dribble_models.gym_equivalence).
+            "cluster": ("..", "cluster", "throughput.md"),
+            "gym": ("..", "cluster", "gym_equivalence.md"),
+        }
         for name, parts in written.items():
             path = args.models.joinpath(*parts) if args.models else None
             if path and path.is_file():

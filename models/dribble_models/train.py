@@ -51,7 +51,7 @@ from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
-from .networks import CNN, HCNN, RCNN, ModalCNN
+from .networks import CNN, FEATURES, HCNN, RCNN, ModalCNN
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_shipped_weights, network_of
 from .stalls import CutReport, StallRule, cut_all
 
@@ -202,6 +202,34 @@ def rcnn_forward_windows(model: RCNN, top: torch.Tensor, bottom: torch.Tensor, w
     return torch.cat(outputs)
 
 
+def cnn_features(path: Path) -> nn.Module:
+    """The camera features (both convolution branches) of a CNN: a checkpoint this trainer
+    wrote (its kept weights) or a shipped one-network float CNN."""
+    cnn = CNN()
+    if is_shipped_model(path):
+        try:
+            load_shipped_weights(cnn, path, "cnn")
+        except ShippedWeightsError as error:
+            raise DatasetError(f"--features-from: {error}") from error
+    elif Path(path).is_file():
+        state = torch.load(path, weights_only=False)
+        if state["identity"]["kind"] != "cnn" or state["identity"].get("modes", 1) != 1:
+            raise DatasetError(f"--features-from {path} is not a one-output CNN's checkpoint")
+        cnn.load_state_dict(state["best"]["state"] if state["best"]["state"] is not None else state["model"])
+    else:
+        raise DatasetError(f"--features-from {path}: no such checkpoint or model")
+    return cnn.features
+
+
+@torch.no_grad()
+def episode_features(model: RCNN, episode: Episode, chunk: int = 512) -> torch.Tensor:
+    """An episode's camera features [T, FEATURES] (the frozen convolutions, once)."""
+    model.features.eval()
+    return torch.cat(
+        [model.features(to_input(episode.top[i : i + chunk]), to_input(episode.bottom[i : i + chunk])) for i in range(0, len(episode), chunk)]
+    )
+
+
 # ---------------------------------------------------------------------------------------
 # Training
 
@@ -309,7 +337,14 @@ class Training:
             self.clusters = nearest(features, self.model.centroids)
         if args.init_from is not None:
             self.start_from(args.init_from)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=args.lr)
+        self.feature_cache: list[torch.Tensor] | None = None
+        if args.features_from is not None:
+            self.model.features.load_state_dict(cnn_features(args.features_from).state_dict())
+            if args.freeze_features:
+                # The convolutions stay the CNN's: each episode's features are computed once.
+                self.model.features.requires_grad_(False)
+                self.feature_cache = [episode_features(self.model, e) for e in self.train_episodes]
+        self.optimizer = torch.optim.Adam([p for p in self.model.parameters() if p.requires_grad], lr=args.lr)
         self.epoch = 0
         self.history: list[dict] = []
         self.best = {"error": math.inf, "epoch": 0, "state": None}
@@ -359,6 +394,7 @@ class Training:
             **({"modes": a.modes} if a.modes != 1 else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
             **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
+            **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
 
     def save(self, path: Path) -> None:
@@ -452,7 +488,15 @@ class Training:
         model.train()
         h, c = model.zero_state(lanes)
         losses = []
+        if self.feature_cache is not None:
+            model.features.eval()  # frozen: no batch statistics or dropout to update anyway
         for step in schedule:
+            if self.feature_cache is not None:
+                losses.append(self.train_rcnn_window_on_features(step, h, c))
+                h, c = self.cached_state
+                bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
+                bar.update(1)
+                continue
             top = torch.zeros(lanes, window, 1, *contract.TOP_SHAPE)
             bottom = torch.zeros(lanes, window, 1, *contract.BOTTOM_SHAPE)
             target = torch.zeros(lanes, window, 3)
@@ -484,6 +528,33 @@ class Training:
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
             bar.update(1)
         return float(np.mean(losses)) if losses else math.nan
+
+    def train_rcnn_window_on_features(self, step, h, c) -> float:
+        """One optimiser step of the LSTM and head on the cached features of `step`'s windows."""
+        model, window, lanes = self.model, self.args.window, self.args.lanes
+        features = torch.zeros(lanes, window, FEATURES)
+        target = torch.zeros(lanes, window, 3)
+        mask = torch.zeros(lanes, window)
+        fresh = torch.ones(1, lanes, 1)
+        for lane, item in enumerate(step):
+            if item is None:
+                continue
+            e, start = item
+            end = min(start + window, len(self.train_episodes[e]))
+            n = end - start
+            features[lane, :n] = self.feature_cache[e][start:end]
+            target[lane, :n] = torch.from_numpy(self.train_episodes[e].command[start:end])
+            mask[lane, :n] = 1.0
+            if start == 0:
+                fresh[0, lane, 0] = 0.0
+        out, (h, c) = model.lstm(features, (h * fresh, c * fresh))
+        self.cached_state = (h.detach(), c.detach())
+        squared = ((model.head(out) - target) ** 2).mean(dim=2)
+        loss = (squared * mask).sum() / mask.sum().clamp(min=1.0)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        return loss.item()
 
     def run(self, checkpoint: Path) -> None:
         epochs = self.args.epochs
@@ -567,6 +638,9 @@ def notes_of(args: argparse.Namespace) -> str:
         parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:
         parts.append(f"started from the kept weights of {args.init_from} (sha256 {start_sha256(args.init_from)[:12]})")
+    if args.features_from is not None:
+        how = "kept fixed" if args.freeze_features else "trained on"
+        parts.append(f"convolutions from the CNN {args.features_from} (sha256 {start_sha256(args.features_from)[:12]}), {how}")
     parts.append("train_error over every episode of the training dataset (validation ones too)")
     return "; ".join(parts)
 
@@ -591,6 +665,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice")
     parser.add_argument("--validation-episodes", type=int, default=10, help="the last N training episodes (by seed) are held out to choose the checkpoint and the shipped model")
     parser.add_argument("--window", type=int, default=100, help="R-CNN: steps per training window")
+    parser.add_argument("--features-from", type=Path, help="R-CNN: start the convolutions from this CNN (a checkpoint this trainer wrote, or a shipped one-network float CNN's directory)")
+    parser.add_argument("--freeze-features", action="store_true", help="R-CNN with --features-from: keep those convolutions fixed and train the LSTM and head only (features computed once per episode, so windows can hold a whole search)")
     parser.add_argument("--lanes", type=int, default=4, help="R-CNN: episodes trained side by side")
     parser.add_argument("--clusters", type=int, default=contract.DEFAULT_CLUSTERS, help="H-CNN: K")
     parser.add_argument("--kmeans-rows", type=int, default=20000, help="H-CNN: rows sampled for k-means")
@@ -609,6 +685,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--cut-stalls is a positive number of seconds")
     if args.modes < 1 or (args.modes > 1 and args.kind != "cnn"):
         parser.error("--modes is 1, or more for --kind cnn only")
+    if args.features_from is not None and args.kind != "rcnn":
+        parser.error("--features-from starts an R-CNN's convolutions (--kind rcnn)")
+    if args.freeze_features and args.features_from is None:
+        parser.error("--freeze-features needs --features-from")
+    if args.freeze_features and args.augment:
+        parser.error("--freeze-features computes each episode's features once: no --augment")
     return args
 
 

@@ -211,3 +211,29 @@ def test_the_manifest_names_the_teacher_and_teachers_are_never_mixed(tmp_path, r
     assert main(argv) == 2
     argv = base + ["--dataset", str(paper), "--test-dataset", str(observable), "--out", str(tmp_path / "t"), "--checkpoint-dir", str(tmp_path / "c4")]
     assert main(argv) == 2
+
+
+def test_an_rcnn_started_from_a_cnns_convolutions_keeps_them_when_frozen(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3], 40, rng)
+    test = write_dataset(tmp_path / "test", [10000], 24, rng)
+    common = ["--dataset", str(train), "--test-dataset", str(test), "--epochs", "1", "--validation-episodes", "1"]
+    common += ["--threads", "1", "--batch-size", "16"]
+    assert main(["--kind", "cnn", *common, "--out", str(tmp_path / "cnn"), "--checkpoint-dir", str(tmp_path / "c-cnn")]) == 0
+    cnn = torch.load(tmp_path / "c-cnn" / "cnn.pt", weights_only=False)["best"]["state"]
+    out = tmp_path / "rcnn"
+    argv = ["--kind", "rcnn", *common, "--out", str(out), "--checkpoint-dir", str(tmp_path / "c-rcnn"), "--window", "40", "--lanes", "2"]
+    with pytest.raises(SystemExit):
+        main(argv + ["--freeze-features"])  # nothing to freeze without --features-from
+    # From the shipped CNN's directory (its ONNX weights), as from a checkpoint.
+    assert main(argv + ["--features-from", str(tmp_path / "cnn"), "--freeze-features"]) == 0
+    rcnn = torch.load(tmp_path / "c-rcnn" / "rcnn.pt", weights_only=False)
+    for name, value in rcnn["best"]["state"].items():
+        if name.startswith("features."):
+            assert torch.equal(value, cnn[name]), name
+    assert rcnn["identity"]["freeze_features"] is True
+    assert "kept fixed" in (out / "policy.toml").read_text()
+    trainer = json.loads((out / "scores.json").read_text())
+    result = run_score(out / "policy.toml", test, tmp_path, "--expect", "test", "--json", str(tmp_path / "robot.json"))
+    assert result.returncode == 0, result.stdout + result.stderr
+    robot = json.loads((tmp_path / "robot.json").read_text())
+    assert abs(robot["error"] - trainer["test"]["error"]) < 1e-4

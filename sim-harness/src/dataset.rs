@@ -294,6 +294,10 @@ pub enum Outcome {
     TimeLimit,
     /// The controller died or stopped answering: the episode failed.
     ControllerLost,
+    /// Stopped from outside before it ended (a Gymnasium environment reset in the middle of
+    /// an episode, [`crate::episode_observer::EpisodeObserver::abandon`]); never recorded
+    /// or evaluated.
+    Abandoned,
 }
 
 impl Outcome {
@@ -303,6 +307,7 @@ impl Outcome {
             Self::BallOut => "ball out",
             Self::TimeLimit => "time limit",
             Self::ControllerLost => "controller lost",
+            Self::Abandoned => "abandoned",
         }
     }
 }

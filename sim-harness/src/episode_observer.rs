@@ -32,6 +32,18 @@ pub trait EpisodeObserver {
     /// Where the robot and the ball are at `time` (every motion cycle).
     fn state(&mut self, _time: Timestamp, _robot: FieldPose, _ball: Vec2) {}
 
+    /// The controller is about to tick at `time` with the robot and the ball here (every
+    /// motion cycle, before the tick's command exists): the state a teacher beside the
+    /// policy would label that command in.
+    fn before_tick(&mut self, _time: Timestamp, _robot: FieldPose, _ball: Vec2) {}
+
+    /// Whether the episode should stop now, unfinished (asked every motion cycle, after the
+    /// tick): a Gymnasium `reset` in the middle of an episode. It then ends as
+    /// [`Outcome::Abandoned`].
+    fn abandon(&mut self) -> bool {
+        false
+    }
+
     /// The episode ended at `time` with `outcome`.
     fn end(&mut self, _time: Timestamp, _outcome: Outcome) {}
 }

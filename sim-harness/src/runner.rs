@@ -284,7 +284,9 @@ pub fn run_episode_observed(
             .is_multiple_of(STEPS_PER_MOTION_CYCLE)
         {
             clock.set(simulation.time());
-            channel.borrow_mut().truth = truth(&simulation);
+            let now = truth(&simulation);
+            observer.before_tick(simulation.time(), now.robot, now.ball);
+            channel.borrow_mut().truth = now;
             let input = CameraInput {
                 top: top_new.then_some(&*top),
                 bottom: bottom_new.then_some(&*bottom),
@@ -317,7 +319,7 @@ pub fn run_episode_observed(
                 }
             }
         }
-        if let Some(outcome) = episode_end(&simulation, setup, limit_steps) {
+        if let Some(outcome) = episode_end(&simulation, setup, limit_steps, observer) {
             break outcome;
         }
     };
@@ -376,8 +378,21 @@ fn take_frame(
     Ok(())
 }
 
-/// How the episode ends at this step, if it does.
-fn episode_end(simulation: &Simulation, setup: &EpisodeSetup, limit_steps: u64) -> Option<Outcome> {
+/// How the episode ends at this step, if it does (`observer` may abandon it).
+fn episode_end(
+    simulation: &Simulation,
+    setup: &EpisodeSetup,
+    limit_steps: u64,
+    observer: &mut dyn EpisodeObserver,
+) -> Option<Outcome> {
+    if simulation
+        .world()
+        .steps()
+        .is_multiple_of(STEPS_PER_MOTION_CYCLE)
+        && observer.abandon()
+    {
+        return Some(Outcome::Abandoned);
+    }
     let field = simulation.world().field();
     let ball = simulation.world().ball().position;
     if field.is_goal(setup.target_side, ball.x, ball.y) {
@@ -615,6 +630,17 @@ fn run_linked(
             observer.frame(simulation.time(), camera, &top, &bottom);
         }
         trace.after_step(&simulation);
+        if simulation
+            .world()
+            .steps()
+            .is_multiple_of(STEPS_PER_MOTION_CYCLE)
+        {
+            observer.before_tick(
+                simulation.time(),
+                simulation.world().robot_pose(),
+                simulation.world().ball().position.truncate(),
+            );
+        }
         let exchanged = exchange(&simulation, camera, &top, &bottom);
         if let Ok(Some(command)) = &exchanged {
             observe_cycle(observer, &simulation, command);
@@ -648,7 +674,7 @@ fn run_linked(
                 break Outcome::ControllerLost;
             }
         }
-        if let Some(outcome) = episode_end(&simulation, setup, limit_steps) {
+        if let Some(outcome) = episode_end(&simulation, setup, limit_steps, observer) {
             break outcome;
         }
     };

@@ -1,0 +1,208 @@
+//! `dribble merge`: the shares of one recording or one evaluation, played apart (on the nodes
+//! of a Ray cluster, `dribble_models.cluster`), put back together as one run of all their
+//! seeds writes them: a dataset directory whose `dataset.json` and episode files are a serial
+//! `dribble record`'s byte for byte, or a trajectories file that is a serial `dribble eval
+//! --trajectories`'s, with its table, goal count and plot.
+//!
+//! The shares must agree on everything but their seeds (simulator, cameras, teacher, driver;
+//! the engine for an evaluation) and must not share a seed; every episode file is checked
+//! against the hash its share recorded before it is copied.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail, ensure};
+use clap::{Args, Subcommand};
+use dribble_sim::dataset::{DatasetIndex, Outcome};
+use dribble_sim::runner::EpisodeResult;
+
+use crate::trajectory_file::{read_trajectories, read_trajectories_engine, write_trajectories};
+use crate::trajectory_plot::{plot_trajectories, title};
+
+#[derive(Debug, Args)]
+pub struct MergeArgs {
+    #[command(subcommand)]
+    what: MergeWhat,
+}
+
+#[derive(Debug, Subcommand)]
+enum MergeWhat {
+    /// Dataset directories of `dribble record` into one (created, or one recorded with the
+    /// same configuration, whose episodes are kept).
+    Dataset {
+        /// The merged dataset directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// The shares' dataset directories.
+        #[arg(required = true)]
+        shares: Vec<PathBuf>,
+    },
+    /// Trajectory files of `dribble eval --trajectories` into one, with the table, the goal
+    /// count and the plot a serial run prints.
+    Trajectories {
+        /// The merged trajectories file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Where to draw the trajectory plot.
+        #[arg(long)]
+        plot: Option<PathBuf>,
+        /// Who drove, for the plot's title (`expert` or the policy's `policy.toml`).
+        #[arg(long, default_value = "expert")]
+        driver: String,
+        /// The shares' trajectory files.
+        #[arg(required = true)]
+        shares: Vec<PathBuf>,
+    },
+}
+
+pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
+    match &args.what {
+        MergeWhat::Dataset { out, shares } => merge_datasets(out, shares),
+        MergeWhat::Trajectories {
+            out,
+            plot,
+            driver,
+            shares,
+        } => merge_trajectories(out, plot.as_deref(), driver, shares),
+    }
+}
+
+/// What must be equal in every share for their episodes to be one dataset's.
+fn configuration(index: &DatasetIndex) -> serde_json::Value {
+    serde_json::json!({
+        "format": index.format,
+        "project_version": index.project_version,
+        "simulator": index.simulator,
+        "expert": index.expert,
+        "driver": index.driver,
+        "teacher": index.teacher.as_deref().unwrap_or("paper"),
+    })
+}
+
+fn merge_datasets(out: &Path, shares: &[PathBuf]) -> anyhow::Result<()> {
+    let mut merged: Option<DatasetIndex> = DatasetIndex::load(out)?;
+    if let Some(index) = &merged {
+        index
+            .verify(out)
+            .with_context(|| format!("the dataset already in {}", out.display()))?;
+    }
+    let mut copies = Vec::new();
+    for share in shares {
+        let index = DatasetIndex::load(share)?
+            .with_context(|| format!("{} holds no dataset.json", share.display()))?;
+        index.verify(share)?;
+        let target = merged.get_or_insert_with(|| DatasetIndex {
+            episodes: Vec::new(),
+            content_hash: None,
+            ..index.clone()
+        });
+        ensure!(
+            configuration(target) == configuration(&index),
+            "{} was recorded with another configuration than the rest (simulator, cameras, \
+             teacher or driver):\n  {}\n  {}",
+            share.display(),
+            configuration(target),
+            configuration(&index)
+        );
+        for entry in &index.episodes {
+            if target.episodes.iter().any(|e| e.seed == entry.seed) {
+                bail!(
+                    "episode {} is in {} and in another share (or already in {})",
+                    entry.seed,
+                    share.display(),
+                    out.display()
+                );
+            }
+            copies.push((share.join(&entry.file), out.join(&entry.file)));
+            target.insert(entry.clone());
+        }
+    }
+    let Some(merged) = merged else {
+        bail!("nothing to merge");
+    };
+    fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    for (from, to) in &copies {
+        fs::copy(from, to)
+            .with_context(|| format!("copying {} to {}", from.display(), to.display()))?;
+    }
+    merged.save(out)?;
+    merged.verify(out)?;
+    let goals = merged
+        .episodes
+        .iter()
+        .filter(|e| e.outcome == Outcome::Goal)
+        .count();
+    println!(
+        "{}: {} episodes ({} from {} shares), {} goals, {} rows, content hash {}",
+        out.join(DatasetIndex::FILE).display(),
+        merged.episodes.len(),
+        copies.len(),
+        shares.len(),
+        goals,
+        merged.episodes.iter().map(|e| e.rows).sum::<usize>(),
+        merged
+            .compute_content_hash()
+            .as_deref()
+            .unwrap_or("(incomplete)")
+    );
+    Ok(())
+}
+
+fn merge_trajectories(
+    out: &Path,
+    plot: Option<&Path>,
+    driver: &str,
+    shares: &[PathBuf],
+) -> anyhow::Result<()> {
+    let mut results: Vec<EpisodeResult> = Vec::new();
+    let mut engines = Vec::new();
+    for share in shares {
+        let episodes = read_trajectories(share)?;
+        for episode in &episodes {
+            ensure!(
+                !results.iter().any(|r| r.setup.seed == episode.setup.seed),
+                "episode {} is in {} and in another share",
+                episode.setup.seed,
+                share.display()
+            );
+        }
+        engines.push(read_trajectories_engine(share)?);
+        results.extend(episodes);
+    }
+    engines.dedup();
+    ensure!(
+        engines.len() == 1,
+        "the shares ran different engines: {engines:?}"
+    );
+    results.sort_by_key(|r| r.setup.seed);
+    let engine = engines.pop().flatten();
+    write_trajectories(&results, engine.as_deref(), out)?;
+    for result in &results {
+        println!(
+            "{:>6}  {:<15}  {:>9.1}  {:>9.2}  {:>8}",
+            result.setup.seed,
+            result.outcome.name(),
+            result.duration_s,
+            result.distance_walked_m,
+            result.computed_commands
+        );
+    }
+    let goals = results
+        .iter()
+        .filter(|r| r.outcome == Outcome::Goal)
+        .count();
+    if let Some(engine) = &engine {
+        println!("engine: {engine}");
+    }
+    let (low, high) = crate::goal_rate::wilson_interval(goals, results.len());
+    println!(
+        "goals: {goals} of {} (95 % Wilson interval {low:.2}-{high:.2})",
+        results.len()
+    );
+    if let Some(plot) = plot {
+        plot_trajectories(&results, &title(driver, &results), plot)?;
+        println!("trajectory plot: {}", plot.display());
+    }
+    println!("trajectories: {}", out.display());
+    Ok(())
+}
