@@ -172,6 +172,11 @@ enum Command {
         /// must leave it out.
         #[arg(long)]
         no_peak: bool,
+        /// Each step is a whole computing tick of the control loop instead of a forward pass:
+        /// both cameras deliver a new frame, the loop accepts them, makes both thumbnails, runs
+        /// the policy and publishes the command (what DESIGN.md's 2 ms budget covers).
+        #[arg(long)]
+        whole_tick: bool,
     },
 }
 
@@ -217,7 +222,14 @@ fn main() -> anyhow::Result<()> {
             policy,
             steps,
             no_peak,
+            whole_tick: false,
         } => forward(&policy, steps, !no_peak, options, config.tick_period),
+        Command::Forward {
+            policy,
+            steps,
+            whole_tick: true,
+            ..
+        } => whole_ticks(&policy, steps, options, config),
         Command::DryRun {
             policy,
             seconds,
@@ -420,6 +432,48 @@ fn forward(
             peak / 1e9,
             100.0 * bound.as_secs_f64() / summary.min.as_secs_f64(),
         );
+    }
+    Ok(())
+}
+
+/// `forward --whole-tick`: `steps` computing ticks of the control loop, each on a new pair of
+/// frames (the test pattern, restamped) at the cameras' rate; their times, and the share of
+/// the tick budget the slowest took.
+fn whole_ticks(
+    manifest: &Path,
+    steps: u32,
+    options: EngineOptions,
+    config: LoopConfig,
+) -> anyhow::Result<()> {
+    let policy = load_learned_policy(manifest, options)?;
+    let pattern = TestPattern::default();
+    let (mut top_frame, mut bottom_frame) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
+    pattern.paint(&mut top_frame, 0, Timestamp::ZERO);
+    pattern.paint(&mut bottom_frame, 0, Timestamp::ZERO);
+    let clock = ManualClock::default();
+    let mut control = ControlLoop::new(config, policy, clock.clone());
+    let period = config.sync.camera_period;
+    let mut times = TickStats::new(config.budget);
+    let mut last = None;
+    for step in 1..=u64::from(steps) {
+        let time = Timestamp::ZERO + period * u32::try_from(step).unwrap_or(u32::MAX);
+        clock.set(time);
+        top_frame.restamp(step, time);
+        bottom_frame.restamp(step, time);
+        let start = Instant::now();
+        let command = control.tick(CameraInput {
+            top: Some(&top_frame),
+            bottom: Some(&bottom_frame),
+        });
+        times.record(start.elapsed());
+        if !command.is_new() {
+            bail!("tick {step} computed no command ({command:?})");
+        }
+        last = Some(command);
+    }
+    println!("{steps} computing tick(s); last command {last:?}");
+    if let Some(summary) = times.summary() {
+        println!("time per computing tick: {summary}");
     }
     Ok(())
 }

@@ -44,3 +44,38 @@ fn a_nonsense_rate_is_refused() {
         );
     }
 }
+
+#[test]
+fn forward_whole_tick_computes_a_command_from_each_new_pair_of_frames() {
+    let policy = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/fixtures/cnn/policy.toml");
+    let run = |extra: &[&str]| {
+        let output = controller_command()
+            .args(["forward", "--no-peak", "--steps", "3", "--policy", policy])
+            .args(extra)
+            .output()
+            .expect("run dribble-controller");
+        assert!(output.status.success(), "{output:?}");
+        String::from_utf8_lossy(&output.stdout).into_owned()
+    };
+    let ticks = run(&["--whole-tick"]);
+    assert!(ticks.contains("3 computing tick(s)"), "{ticks}");
+    // The third tick computed from the third pair of frames, as a new command.
+    assert!(
+        ticks.contains("top_sequence: 3, bottom_sequence: 3"),
+        "{ticks}"
+    );
+    assert!(ticks.contains("time per computing tick: 3 ticks"), "{ticks}");
+    // The same thumbnails, so the same numbers as the bare forward pass (inside [-1, 1]).
+    let passes = run(&[]);
+    let number = |text: &str, name: &str| -> String {
+        let at = text.find(&format!("{name}: ")).expect(name) + name.len() + 2;
+        text[at..]
+            .split([',', ' ', '}'])
+            .next()
+            .unwrap_or_default()
+            .to_owned()
+    };
+    for name in ["forward", "left", "turn"] {
+        assert_eq!(number(&ticks, name), number(&passes, name), "{ticks}\n{passes}");
+    }
+}
