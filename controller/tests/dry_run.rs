@@ -47,7 +47,10 @@ fn a_nonsense_rate_is_refused() {
 
 #[test]
 fn forward_whole_tick_computes_a_command_from_each_new_pair_of_frames() {
-    let policy = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/fixtures/cnn/policy.toml");
+    let policy = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../models/fixtures/cnn/policy.toml"
+    );
     let run = |extra: &[&str]| {
         let output = controller_command()
             .args(["forward", "--no-peak", "--steps", "3", "--policy", policy])
@@ -64,7 +67,10 @@ fn forward_whole_tick_computes_a_command_from_each_new_pair_of_frames() {
         ticks.contains("top_sequence: 3, bottom_sequence: 3"),
         "{ticks}"
     );
-    assert!(ticks.contains("time per computing tick: 3 ticks"), "{ticks}");
+    assert!(
+        ticks.contains("time per computing tick: 3 ticks"),
+        "{ticks}"
+    );
     // The same thumbnails, so the same numbers as the bare forward pass (inside [-1, 1]).
     let passes = run(&[]);
     let number = |text: &str, name: &str| -> String {
@@ -76,6 +82,10 @@ fn forward_whole_tick_computes_a_command_from_each_new_pair_of_frames() {
             .to_owned()
     };
     for name in ["forward", "left", "turn"] {
-        assert_eq!(number(&ticks, name), number(&passes, name), "{ticks}\n{passes}");
+        assert_eq!(
+            number(&ticks, name),
+            number(&passes, name),
+            "{ticks}\n{passes}"
+        );
     }
 }

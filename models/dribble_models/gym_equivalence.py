@@ -134,10 +134,17 @@ def play_in_eval(driver: str, seeds, time_limit_s: float, expert: str = "paper")
 
 
 def largest_gap(a: np.ndarray, b: np.ndarray) -> float:
-    """The largest distance between two 10 Hz paths at the same instant (inf if lengths differ)."""
-    if a.shape != b.shape:
-        return float("inf")
-    return float(np.max(np.linalg.norm(a - b, axis=1))) if len(a) else 0.0
+    """The largest distance between two 10 Hz paths at the same instant, over the instants
+    both have (an episode that ends earlier has fewer)."""
+    n = min(len(a), len(b))
+    return float(np.max(np.linalg.norm(a[:n] - b[:n], axis=1))) if n else 0.0
+
+
+def parting_time(a: np.ndarray, b: np.ndarray, apart_m: float = 0.01) -> float | None:
+    """When two 10 Hz paths are first more than `apart_m` apart, seconds (None: never)."""
+    n = min(len(a), len(b))
+    apart = np.flatnonzero(np.linalg.norm(a[:n] - b[:n], axis=1) > apart_m)
+    return float(apart[0]) / 10 if len(apart) else None
 
 
 def compare(environment: list[Played], evaluation: list[Played]) -> list[dict]:
@@ -153,6 +160,7 @@ def compare(environment: list[Played], evaluation: list[Played]) -> list[dict]:
                 "commands_eval": eval_run.computed_commands,
                 "robot_gap_m": largest_gap(env_run.robot, eval_run.robot),
                 "ball_gap_m": largest_gap(env_run.ball, eval_run.ball),
+                "apart_after_s": parting_time(env_run.robot, eval_run.robot),
                 "steps_per_s": env_run.steps / env_run.wall_s if env_run.wall_s else 0.0,
             }
         )
@@ -188,12 +196,15 @@ def main(argv=None) -> int:
         environment = play_in_environment(lambda o, _: policy(o), args.episodes, args.time_limit)
         evaluation = play_in_eval(args.policy, args.episodes, args.time_limit)
     rows = compare(environment, evaluation)
-    print(f"{'seed':>6}  {'env':<10}  {'eval':<10}  {'commands':>13}  "
-          f"{'robot gap (m)':>13}  {'ball gap (m)':>12}  {'steps/s':>7}")  # fmt: skip
+    def apart(r):
+        return "never" if r["apart_after_s"] is None else f"{r['apart_after_s']:.1f} s"
+
+    print(f"{'seed':>6}  {'env':<10}  {'eval':<10}  {'commands':>13}  {'robot gap (m)':>13}  "
+          f"{'ball gap (m)':>12}  {'1 cm apart':>10}  {'steps/s':>7}")  # fmt: skip
     for r in rows:
         print(f"{r['seed']:>6}  {r['outcome_env']:<10}  {r['outcome_eval']:<10}  "
               f"{r['commands_env']:>6}/{r['commands_eval']:<6}  {r['robot_gap_m']:>13.2e}  "
-              f"{r['ball_gap_m']:>12.2e}  {r['steps_per_s']:>7.1f}")  # fmt: skip
+              f"{r['ball_gap_m']:>12.2e}  {apart(r):>10}  {r['steps_per_s']:>7.1f}")  # fmt: skip
     same = sum(r["outcome_env"] == r["outcome_eval"] for r in rows)
     steps = sum(p.steps for p in environment)
     wall = sum(p.wall_s for p in environment)
@@ -203,11 +214,12 @@ def main(argv=None) -> int:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
     if args.markdown:
         lines = ["| seed | outcome, environment | outcome, `dribble eval` | commands | largest robot gap (m) "
-                 "| largest ball gap (m) | steps per second |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+                 "| largest ball gap (m) | robot paths 1 cm apart after | steps per second |",
+                 "|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in rows:
             lines.append(f"| {r['seed']} | {r['outcome_env']} | {r['outcome_eval']} | "
                          f"{r['commands_env']} / {r['commands_eval']} | {r['robot_gap_m']:.1e} | "
-                         f"{r['ball_gap_m']:.1e} | {r['steps_per_s']:.1f} |")  # fmt: skip
+                         f"{r['ball_gap_m']:.1e} | {apart(r)} | {r['steps_per_s']:.1f} |")  # fmt: skip
         args.markdown.write_text("\n".join(lines) + "\n")
     return 0 if same == len(rows) else 1
 
