@@ -150,14 +150,14 @@ fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> an
     Ok(())
 }
 
-fn print_header() {
+pub(crate) fn print_header() {
     println!(
         "{:>6}  {:<15}  {:>9}  {:>9}  {:>8}",
         "seed", "outcome", "time (s)", "walked (m)", "commands"
     );
 }
 
-fn print_row(result: &EpisodeResult) {
+pub(crate) fn print_row(result: &EpisodeResult) {
     println!(
         "{:>6}  {:<15}  {:>9.1}  {:>9.2}  {:>8}",
         result.setup.seed,

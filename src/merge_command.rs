@@ -16,6 +16,7 @@ use clap::{Args, Subcommand};
 use dribble_sim::dataset::{DatasetIndex, Outcome};
 use dribble_sim::runner::EpisodeResult;
 
+use crate::eval_command::{print_header, print_row};
 use crate::trajectory_file::{read_trajectories, read_trajectories_engine, write_trajectories};
 use crate::trajectory_plot::{plot_trajectories, title};
 
@@ -177,15 +178,9 @@ fn merge_trajectories(
     results.sort_by_key(|r| r.setup.seed);
     let engine = engines.pop().flatten();
     write_trajectories(&results, engine.as_deref(), out)?;
+    print_header();
     for result in &results {
-        println!(
-            "{:>6}  {:<15}  {:>9.1}  {:>9.2}  {:>8}",
-            result.setup.seed,
-            result.outcome.name(),
-            result.duration_s,
-            result.distance_walked_m,
-            result.computed_commands
-        );
+        print_row(result);
     }
     let goals = results
         .iter()

@@ -292,6 +292,33 @@ def window_schedule(episodes: list[Episode], lanes: list[list[int]], window: int
     return [[l[t] if t < len(l) else None for l in per_lane] for t in range(steps)]
 
 
+def lanes_in(step: list[tuple[int, int] | None]):
+    """The lanes of one training step that hold a window: (lane, (episode, first row))."""
+    return [(lane, item) for lane, item in enumerate(step) if item is not None]
+
+
+def window_targets(step, episodes: list[Episode], window: int, lanes: int):
+    """For one step's windows: the expert's commands [lanes, window, 3], the mask of real
+    rows [lanes, window], and the factor [1, lanes, 1] that zeroes the carried state of a
+    lane whose window starts an episode (as on the robot)."""
+    target = torch.zeros(lanes, window, 3)
+    mask = torch.zeros(lanes, window)
+    fresh = torch.ones(1, lanes, 1)
+    for lane, (e, start) in lanes_in(step):
+        end = min(start + window, len(episodes[e]))
+        target[lane, : end - start] = torch.from_numpy(episodes[e].command[start:end])
+        mask[lane, : end - start] = 1.0
+        if start == 0:
+            fresh[0, lane, 0] = 0.0
+    return target, mask, fresh
+
+
+def masked_loss(out: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean squared error over the real rows of the windows."""
+    squared = ((out - target) ** 2).mean(dim=2)
+    return (squared * mask).sum() / mask.sum().clamp(min=1.0)
+
+
 class Training:
     """One model's training run: data, model, optimiser, checkpoints."""
 
@@ -499,28 +526,17 @@ class Training:
                 continue
             top = torch.zeros(lanes, window, 1, *contract.TOP_SHAPE)
             bottom = torch.zeros(lanes, window, 1, *contract.BOTTOM_SHAPE)
-            target = torch.zeros(lanes, window, 3)
-            mask = torch.zeros(lanes, window)
-            fresh = torch.ones(1, lanes, 1)
-            for lane, item in enumerate(step):
-                if item is None:
-                    continue
-                e, start = item
+            target, mask, fresh = window_targets(step, episodes, window, lanes)
+            for lane, (e, start) in lanes_in(step):
                 episode = episodes[e]
                 end = min(start + window, len(episode))
-                n = end - start
                 t, b = to_input(episode.top[start:end]), to_input(episode.bottom[start:end])
                 if self.augment:
                     t, b = self.augment(t, b, generator)
-                top[lane, :n], bottom[lane, :n] = t, b
-                target[lane, :n] = torch.from_numpy(episode.command[start:end])
-                mask[lane, :n] = 1.0
-                if start == 0:
-                    fresh[0, lane, 0] = 0.0  # a new episode: zero state, as on the robot
+                top[lane, : end - start], bottom[lane, : end - start] = t, b
             out, (h, c) = model(top, bottom, (h * fresh, c * fresh))
             h, c = h.detach(), c.detach()
-            squared = ((out - target) ** 2).mean(dim=2)
-            loss = (squared * mask).sum() / mask.sum().clamp(min=1.0)
+            loss = masked_loss(out, target, mask)
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
@@ -533,24 +549,13 @@ class Training:
         """One optimiser step of the LSTM and head on the cached features of `step`'s windows."""
         model, window, lanes = self.model, self.args.window, self.args.lanes
         features = torch.zeros(lanes, window, FEATURES)
-        target = torch.zeros(lanes, window, 3)
-        mask = torch.zeros(lanes, window)
-        fresh = torch.ones(1, lanes, 1)
-        for lane, item in enumerate(step):
-            if item is None:
-                continue
-            e, start = item
+        target, mask, fresh = window_targets(step, self.train_episodes, window, lanes)
+        for lane, (e, start) in lanes_in(step):
             end = min(start + window, len(self.train_episodes[e]))
-            n = end - start
-            features[lane, :n] = self.feature_cache[e][start:end]
-            target[lane, :n] = torch.from_numpy(self.train_episodes[e].command[start:end])
-            mask[lane, :n] = 1.0
-            if start == 0:
-                fresh[0, lane, 0] = 0.0
+            features[lane, : end - start] = self.feature_cache[e][start:end]
         out, (h, c) = model.lstm(features, (h * fresh, c * fresh))
         self.cached_state = (h.detach(), c.detach())
-        squared = ((model.head(out) - target) ** 2).mean(dim=2)
-        loss = (squared * mask).sum() / mask.sum().clamp(min=1.0)
+        loss = masked_loss(model.head(out), target, mask)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
