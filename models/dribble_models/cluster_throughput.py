@@ -60,8 +60,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as scratch:
         # A short episode first, so that no run pays for the first start (page cache, Mesa's
         # shader cache) alone.
-        timed([str(binary_dir() / "dribble"), "eval", "--driver", args.policy, "--episodes", seeds.split("..")[0]
-               + ".." + str(args.episodes.start + 1), "--time-limit", "2", "--isa", args.isa,
+        timed([str(binary_dir() / "dribble"), "eval", "--driver", args.policy, "--episodes", f"{args.episodes.start}..{args.episodes.start + 1}", "--time-limit", "2", "--isa", args.isa,
                "--domain", f"warm-up-{os.getpid()}", "--plot", str(Path(scratch) / "warm-up.png"),
                "--controller-log", str(Path(scratch) / "warm-up.log")], env)  # fmt: skip
         files = {}

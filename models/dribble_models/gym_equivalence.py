@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dribble_models.cluster import seed_range
 from dribble_models.gym_env import NaoDribbleEnv, find_dribble
 
 
@@ -167,11 +168,6 @@ def compare(environment: list[Played], evaluation: list[Played]) -> list[dict]:
     return rows
 
 
-def seed_range(text: str) -> list[int]:
-    start, _, end = text.partition("..")
-    return list(range(int(start), int(end)))
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", default="models/policy/dagger-observable/policy.toml")
@@ -184,6 +180,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, help="also write the rows here")
     parser.add_argument("--markdown", type=Path, help="also write the table (Markdown) here")
     args = parser.parse_args(argv)  # fmt: skip
+    args.episodes = list(args.episodes)
 
     if args.teacher:
         environment = play_in_environment(
