@@ -6,6 +6,7 @@ resumes with the missing seeds only; shares that disagree are not merged."""
 import filecmp
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,16 +19,27 @@ TIME_LIMIT = ["--time-limit", "1.5"]
 
 @pytest.fixture(scope="module")
 def ray_cluster():
-    """Two one-CPU nodes: two shares at once must run on different nodes."""
-    ray = pytest.importorskip("ray")
-    from ray.cluster_utils import Cluster
+    """Two one-CPU nodes (two shares at once must run on different nodes), held by a child
+    process (`ray_nodes.py` says why): the head's address."""
+    pytest.importorskip("ray")
+    nodes = subprocess.Popen([sys.executable, str(Path(__file__).with_name("ray_nodes.py"))],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        address = nodes.stdout.readline().strip()
+        assert address, "the Ray nodes did not start"
+        yield address
+    finally:
+        nodes.stdin.close()
+        nodes.wait(timeout=120)
 
-    nodes = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
-    nodes.add_node(num_cpus=1)
-    nodes.wait_for_nodes()
-    yield nodes.address
-    ray.shutdown()
-    nodes.shutdown()
+
+def run_cluster(*arguments, cwd=None) -> str:
+    """`python -m dribble_models.cluster ARGUMENTS` as a child process: its standard output."""
+    run = subprocess.run([sys.executable, "-m", "dribble_models.cluster", *arguments],
+                         capture_output=True, text=True, cwd=cwd,
+                         env={**os.environ, "PYTHONPATH": str(REPOSITORY / "models")})  # fmt: skip
+    assert run.returncode == 0, run.stdout + run.stderr
+    return run.stdout
 
 
 @pytest.fixture(autouse=True)
@@ -51,24 +63,20 @@ def same_directories(a: Path, b: Path) -> bool:
     return not mismatch and not errors
 
 
-def test_a_recording_on_two_nodes_is_the_serial_recording_byte_for_byte_and_resumes(
-    ray_cluster, tmp_path, capsys
-):
+def test_a_recording_on_two_nodes_is_the_serial_recording_byte_for_byte_and_resumes(ray_cluster, tmp_path):
     serial = tmp_path / "serial"
     dribble("record", "--episodes", "10003..10006", "--out", str(serial), *TIME_LIMIT)
     sharded = tmp_path / "sharded"
     # First a part (a run stopped after its first shares), then all: only 10005 is new.
     arguments = ["--address", ray_cluster, "--out", str(sharded), "--share", "1"]
-    assert cluster.main(["record", "--episodes", "10003..10005", *arguments, "--", *TIME_LIMIT]) == 0
-    first = capsys.readouterr().out
+    first = run_cluster("record", "--episodes", "10003..10005", *arguments, "--", *TIME_LIMIT)
     nodes = {
         line.split(" episodes on ")[1].split(",")[0]
         for line in first.splitlines()
         if line.startswith("share ")
     }
     assert len(nodes) == 2, first  # one share on each node
-    assert cluster.main(["record", "--episodes", "10003..10006", *arguments, "--", *TIME_LIMIT]) == 0
-    second = capsys.readouterr().out
+    second = run_cluster("record", "--episodes", "10003..10006", *arguments, "--", *TIME_LIMIT)
     assert "2 episode(s) already in" in second and "1 share(s)" in second, second
     assert same_directories(serial, sharded)
     hash_line = [line for line in second.splitlines() if "content hash" in line][0]
@@ -83,16 +91,9 @@ def test_an_evaluation_on_two_nodes_with_shipped_binaries_is_the_serial_one(ray_
             "--plot", str(tmp_path / "serial.png"), "--controller-log",
             str(tmp_path / "controller.log"), cwd=REPOSITORY)  # fmt: skip
     sharded = tmp_path / "sharded.json"
-    here = os.getcwd()
-    os.chdir(REPOSITORY)
-    try:
-        code = cluster.main(["eval", "--episodes", "10000..10003", "--address", ray_cluster,
-                             "--share", "2", "--ship", "--trajectories", str(sharded),
-                             "--plot", str(tmp_path / "sharded.png"), "--", "--driver", policy,
-                             *TIME_LIMIT])  # fmt: skip
-    finally:
-        os.chdir(here)
-    assert code == 0
+    run_cluster("eval", "--episodes", "10000..10003", "--address", ray_cluster, "--share", "2",
+                "--ship", "--trajectories", str(sharded), "--plot", str(tmp_path / "sharded.png"),
+                "--", "--driver", policy, *TIME_LIMIT, cwd=REPOSITORY)  # fmt: skip
     assert sharded.read_bytes() == serial.read_bytes()
     assert (tmp_path / "sharded.png").stat().st_size > 0
 
