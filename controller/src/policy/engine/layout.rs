@@ -216,11 +216,18 @@ impl Grid {
     /// adds and takes away 1.5 x 2^23, which rounds to an integer in the current
     /// (nearest-even) mode on every instruction set, without SSE4.1's `roundps` (the V5 has
     /// none) or a call into libm; every operation is one the compiler vectorises.
+    ///
+    /// `max` then `min`, not `clamp`: `clamp` asserts its bounds' order and passes a NaN on,
+    /// which kept the compiler from turning the coding loops into `maxps`/`minps` (a NaN
+    /// becomes the lowest code here; the load check compares the outputs with tract's).
+    /// Callgrind, host SSSE3, int8 CNN forward: 6.2 M instructions with `clamp`, 5.0 M
+    /// without.
     #[inline(always)]
+    #[allow(clippy::manual_clamp)]
     fn steps(self, x: f32) -> f32 {
         let zero = f32::from(self.zero);
-        let steps = (x * self.inverse).clamp(-512.0, 512.0);
-        ((steps + ROUND) - ROUND).clamp(-zero, 255.0 - zero)
+        let steps = (x * self.inverse).max(-512.0).min(512.0);
+        ((steps + ROUND) - ROUND).max(-zero).min(255.0 - zero)
     }
 
     /// `QuantizeLinear`: the code of `x`, saturated to 0..=255 (NaN gives a code too; the

@@ -98,12 +98,10 @@ pub(crate) struct QuantizedConv {
     pub kernel: Int8Kernel,
     pub epilogue: Epilogue,
     /// Scratch, allocated at load: the padded map's codes (the border holds the zero
-    /// point; [`Window::slack`] bytes after it), where a window's rows start, and one
-    /// pixel's sums.
+    /// point; [`Window::slack`] bytes after it), the windows of one output (one pixel, or
+    /// a pool cell's pixels), each [`Window::padded_len`] bytes, and one output's sums.
     pub codes: Vec<u8>,
-    /// Where a gathered window is copied ([`Window::scratch`]).
-    pub gathered: Vec<u8>,
-    pub starts: Vec<usize>,
+    pub windows: Vec<u8>,
     pub sums: Vec<i32>,
     /// NHWC floats: the pooled map where `pool` is set, else the convolution's.
     pub out: BufferId,
@@ -122,8 +120,6 @@ pub(crate) struct QuantizedPool {
     pub stride: [usize; 2],
     /// The pooled map's height and width.
     pub out: [usize; 2],
-    /// Scratch: one pooled output's largest sums, per channel.
-    pub largest: Vec<i32>,
 }
 
 impl core::fmt::Debug for QuantizedConv {
@@ -580,8 +576,7 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
         kernel,
         epilogue,
         codes,
-        gathered,
-        starts,
+        windows,
         sums,
         out,
         pool,
@@ -604,15 +599,13 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
         }
     }
     let outputs = sums.len();
-    let mut product = |pixel: [usize; 2], sums: &mut [i32]| {
-        window.starts(pixel, starts);
-        window.product(*kernel, codes, starts, gathered, weights, sums);
-    };
+    let len = window.padded_len();
     with_output(buffers, *out, |target, _| match pool {
         None => {
             let pixels = target.chunks_exact_mut(outputs).take(*oh * *ow);
             for (pixel, values) in pixels.enumerate() {
-                product([pixel / *ow, pixel % *ow], sums);
+                window.gather(codes, [pixel / *ow, pixel % *ow], windows);
+                kernel.largest(&windows[..len], weights, sums);
                 epilogue.apply(sums, values);
             }
         }
@@ -620,21 +613,19 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
             kernel: [kh, kw],
             stride: [sh, sw],
             out: [ph, pw],
-            largest,
         }) => {
             let cells = target.chunks_exact_mut(outputs).take(*ph * *pw);
             for (cell, values) in cells.enumerate() {
                 let [y, x] = [cell / *pw * *sh, cell % *pw * *sw];
-                largest.fill(i32::MIN);
+                // The cell's windows one after the other; the kernel keeps the largest sum.
                 for dy in 0..*kh {
                     for dx in 0..*kw {
-                        product([y + dy, x + dx], sums);
-                        for (most, &sum) in largest.iter_mut().zip(sums.iter()) {
-                            *most = (*most).max(sum);
-                        }
+                        let slot = (dy * *kw + dx) * len;
+                        window.gather(codes, [y + dy, x + dx], &mut windows[slot..slot + len]);
                     }
                 }
-                epilogue.apply(largest, values);
+                kernel.largest(&windows[..*kh * *kw * len], weights, sums);
+                epilogue.apply(sums, values);
             }
         }
     });
@@ -661,7 +652,7 @@ fn quantized_dense(dense: &mut QuantizedDense, buffers: &mut [Vec<f32>]) {
         for (code, &value) in codes[..k].iter_mut().zip(&x[r * k..(r + 1) * k]) {
             *code = input.code(value);
         }
-        kernel.dense(codes, weights, sums);
+        kernel.largest(codes, weights, sums);
         epilogue.apply(sums, &mut target[r * n..(r + 1) * n]);
     }
     buffers[*to] = target;

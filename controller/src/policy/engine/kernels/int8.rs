@@ -11,18 +11,22 @@
 //! them with onnxruntime's `reduce_range`); the tests prove the equality on the worst cases.
 //!
 //! Layout: a layer's weights in panels of `width` outputs, `[panel][quad][width][4]`: for each
-//! four inputs ("quad"), each output's four weights side by side, so one broadcast of the
-//! four input bytes meets `width` outputs' weights in `width / 4` vector registers (SSSE3:
-//! 16 outputs in four registers; AVX2: 32). A quad whose four inputs are all zero (most of
-//! them after ReLU and max-pooling) is skipped with its weights, as the float dense kernel
-//! skips zero inputs.
+//! four inputs ("quad"), each output's four weights side by side, so one spread of the four
+//! input bytes over the lanes meets `width` outputs' weights in `width / 4` vector registers
+//! (16 outputs in four 128-bit registers; AVX2: 32 in four 256-bit ones). Inputs are read
+//! sixteen bytes (four quads, a "group") at a time, so a layer's inputs are rounded up to
+//! whole groups with zero weights; a group of sixteen zero inputs (common after ReLU and
+//! max-pooling) is skipped with its weights.
 //!
-//! The QDQ lowering (`lower/quantized.rs`) lays the weights out; the plan's int8 steps call
-//! [`Int8Kernel::dense`] once per dense row and [`Window::product`] once per convolution
-//! output pixel, whose window is read in place from the padded map, one segment per kernel
-//! row ([`Segments`]), or, for the cameras' one-channel layers, gathered with one 8-byte
-//! load and store per row (a `memcpy` call per 5-byte row was more than the V5's first
-//! layer could afford; rows rounded up to quads waste 3 of every 10).
+//! One call computes the largest of several products `W x_r` per output ([`Int8Kernel::largest`]):
+//! a dense row is one `x`; a convolution hands over the windows of a max-pool's cell (four
+//! for the CNN's 2x2 pools) copied one after the other by [`Window::gather`], so the pool's
+//! maximum is taken in vector registers and the call, its checks and the panel set-up are
+//! paid once per pooled output instead of once per pixel.
+//!
+//! History, measured with callgrind (cross/README.md): one call per pixel with the window
+//! read in place (a segment per kernel row) and one quad per broadcast cost 8.07 M
+//! instructions per CNN forward on the V5, more than the float engine's 5.95 M.
 // The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
 #![allow(unsafe_code)]
 
@@ -34,6 +38,9 @@ use std::arch::x86_64::*;
 /// The largest weight magnitude the kernels take: `pmaddubsw` cannot saturate below it.
 pub(crate) const MAX_WEIGHT: i8 = 64;
 
+/// Inputs are read in groups of this many bytes (four quads, one 128-bit load).
+pub(crate) const GROUP: usize = 16;
+
 /// A weight outside -64..64: the 16-bit pair sums of `pmaddubsw` could saturate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct WeightOutOfRange {
@@ -42,11 +49,21 @@ pub(crate) struct WeightOutOfRange {
     pub value: i8,
 }
 
-/// Int8 weights `[panel][quad][width][4]`; inputs are taken in quads, the last one padded
-/// with zero weights, and outputs in panels of `width`, the last padded with zero columns.
+/// 64 bytes of weights on a 64-byte boundary: one quad of a 16-wide panel, half of a 32-wide
+/// one. Aligned so that the SSSE3 kernel's `pmaddubsw` reads its weights as a memory operand
+/// (a legacy-encoded SSE instruction takes only aligned ones), which leaves the V5's eight
+/// vector registers to the sums.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(C, align(64))]
+struct WeightBlock([i8; 64]);
+
+/// Int8 weights `[panel][quad][width][4]`; inputs are taken in whole groups of sixteen, the
+/// last one padded with zero weights, and outputs in panels of `width`, the last padded with
+/// zero columns. Every quad of a panel of 16 or 32 starts on a 64-byte boundary.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(crate) struct QuadPanels {
-    values: Vec<i8>,
+    blocks: Vec<WeightBlock>,
+    len: usize,
     inputs: usize,
     outputs: usize,
     width: usize,
@@ -64,9 +81,10 @@ impl QuadPanels {
         debug_assert!(
             width.is_multiple_of(4) && (4..=64).contains(&width) && rows.len() == outputs * inputs
         );
-        let quads = inputs.div_ceil(4);
+        let quads = inputs.div_ceil(GROUP) * GROUP / 4;
         let panels = outputs.div_ceil(width);
-        let mut values = vec![0; panels * quads * width * 4];
+        let len = panels * quads * width * 4;
+        let mut values = vec![0i8; len];
         for (o, row) in rows.chunks_exact(inputs.max(1)).take(outputs).enumerate() {
             let (panel, column) = (o / width, o % width);
             for (i, &w) in row.iter().enumerate() {
@@ -80,8 +98,13 @@ impl QuadPanels {
                 values[((panel * quads + i / 4) * width + column) * 4 + i % 4] = w;
             }
         }
+        let mut blocks = vec![WeightBlock([0; 64]); len.div_ceil(64)];
+        for (block, chunk) in blocks.iter_mut().zip(values.chunks(64)) {
+            block.0[..chunk.len()].copy_from_slice(chunk);
+        }
         Ok(Self {
-            values,
+            blocks,
+            len,
             inputs,
             outputs,
             width,
@@ -96,238 +119,373 @@ impl QuadPanels {
         self.outputs
     }
 
-    /// Inputs rounded up to whole quads: the length the input slice must have.
+    /// Inputs rounded up to whole groups: the length of each `x` the kernels read.
     pub(crate) fn padded_inputs(&self) -> usize {
-        self.inputs.div_ceil(4) * 4
+        self.inputs.div_ceil(GROUP) * GROUP
+    }
+
+    /// The weights as one run of bytes, `[panel][quad][width][4]`.
+    fn values(&self) -> &[i8] {
+        // SAFETY: `WeightBlock` is 64 `i8` with no padding (`repr(C)`, size 64), so the
+        // blocks are `64 * blocks.len()` initialised bytes, of which `len` are used.
+        unsafe { std::slice::from_raw_parts(self.blocks.as_ptr().cast::<i8>(), self.len) }
     }
 
     fn panel(&self, panel: usize) -> &[i8] {
         let size = self.padded_inputs() * self.width;
-        &self.values[panel * size..(panel + 1) * size]
+        &self.values()[panel * size..(panel + 1) * size]
     }
-}
 
-/// The four input bytes of quad `q` as one little-endian word.
-#[inline(always)]
-fn quad(x: &[u8], q: usize) -> u32 {
-    u32::from_le_bytes([x[4 * q], x[4 * q + 1], x[4 * q + 2], x[4 * q + 3]])
-}
-
-/// Where a product's inputs lie: `starts.len()` segments of `4 * quads` bytes each, segment
-/// `r` from `x[starts[r]]` on, read one after the other as one vector of
-/// [`QuadPanels::padded_inputs`] bytes. A dense row is one segment; a convolution window is
-/// one segment per kernel row, read in place from the padded map (its rows rounded up to
-/// whole quads: the extra bytes belong to the next pixel and meet zero weights).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Segments<'a> {
-    pub starts: &'a [usize],
-    pub quads: usize,
-}
-
-impl Segments<'_> {
-    /// Every segment inside `x`, and as many quads in all as the weights have: checked once
-    /// per call, so the loops' reads are in bounds.
-    fn check(&self, x: &[u8], weights: &QuadPanels) {
-        let len = 4 * self.quads;
+    /// How many rows of [`Self::padded_inputs`] bytes `x` holds; panics where `x` is not
+    /// whole rows or `acc` not one sum per output (checked once per call, so the loops'
+    /// reads are in bounds).
+    fn rows_in(&self, x: &[u8], acc: &[i32]) -> usize {
+        let row = self.padded_inputs();
         assert!(
-            self.starts.len() * len == weights.padded_inputs()
-                && self
-                    .starts
-                    .iter()
-                    .all(|&start| start.checked_add(len).is_some_and(|end| end <= x.len())),
-            "int8 segments outside their input"
+            row > 0 && x.len().is_multiple_of(row) && !x.is_empty() && acc.len() == self.outputs,
+            "int8 product of {} bytes against rows of {row}",
+            x.len()
         );
-    }
-
-    /// The four bytes of quad `q` (counted over all segments) as one little-endian word.
-    #[inline(always)]
-    fn quad(&self, x: &[u8], segment: usize, q: usize) -> u32 {
-        quad(&x[self.starts[segment]..], q)
+        x.len() / row
     }
 }
 
-/// `acc = W x` in exact integers, any CPU: the reference the vector kernels equal.
-pub(crate) fn dense_portable(
-    x: &[u8],
-    segments: Segments<'_>,
-    weights: &QuadPanels,
-    acc: &mut [i32],
-) {
-    segments.check(x, weights);
-    let width = weights.width;
+/// `acc[o] = max over rows r of (W x_r)[o]` in exact integers, `x` holding the rows one after
+/// the other, any CPU: the reference the vector kernels equal.
+pub(crate) fn largest_portable(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+    let rows = weights.rows_in(x, acc);
+    let (width, row) = (weights.width, weights.padded_inputs());
     for (panel, out) in acc.chunks_mut(width).enumerate() {
         let w = weights.panel(panel);
-        let mut sums = [0i32; 64];
-        let sums = &mut sums[..width.min(64)];
-        for segment in 0..segments.starts.len() {
-            for q in 0..segments.quads {
-                let bytes = segments.quad(x, segment, q).to_le_bytes();
+        let mut largest = [i32::MIN; 64];
+        for r in 0..rows {
+            let mut sums = [0i32; 64];
+            let sums = &mut sums[..width.min(64)];
+            for (q, bytes) in x[r * row..(r + 1) * row].chunks_exact(4).enumerate() {
                 if bytes == [0; 4] {
                     continue;
                 }
-                let base = (segment * segments.quads + q) * width;
                 for (column, sum) in sums.iter_mut().enumerate() {
-                    let ws = &w[(base + column) * 4..(base + column) * 4 + 4];
+                    let ws = &w[(q * width + column) * 4..(q * width + column) * 4 + 4];
                     for (&xv, &wv) in bytes.iter().zip(ws) {
                         *sum += i32::from(xv) * i32::from(wv);
                     }
                 }
             }
+            for (most, &sum) in largest.iter_mut().zip(sums.iter()) {
+                *most = (*most).max(sum);
+            }
         }
-        out.copy_from_slice(&sums[..out.len()]);
+        out.copy_from_slice(&largest[..out.len()]);
     }
 }
 
-/// [`dense_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`): panels of 16 outputs, held in
-/// four registers (with the input broadcast, a weight vector, the ones and a product: the
-/// V5's eight). Bounds are checked once per segment, not per quad.
-///
-/// # Safety
-/// The CPU must have SSSE3; `weights.width()` must be 16.
+/// One quad's products into one panel's sums, with intrinsics: `xq` holds the quad's four
+/// input bytes in every 32-bit lane, `$w` points at the quad's weights (aligned), the sums are
+/// 32-bit lanes. `pmaddubsw` leaves 16-bit pair sums (which cannot saturate: [`MAX_WEIGHT`]),
+/// `pmaddwd` with ones adds neighbouring pairs into 32 bits, `paddd` accumulates.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-#[target_feature(enable = "ssse3")]
-pub(crate) unsafe fn dense_ssse3(
-    x: &[u8],
-    segments: Segments<'_>,
-    weights: &QuadPanels,
-    acc: &mut [i32],
-) {
-    debug_assert_eq!(weights.width, 16);
-    segments.check(x, weights);
-    assert_eq!(acc.len(), weights.outputs);
-    let ones = _mm_set1_epi16(1);
-    let row = 4 * segments.quads;
-    for (panel, out) in acc.chunks_mut(16).enumerate() {
-        let w = weights.panel(panel);
-        let (mut s0, mut s1, mut s2, mut s3) = (
-            _mm_setzero_si128(),
-            _mm_setzero_si128(),
-            _mm_setzero_si128(),
-            _mm_setzero_si128(),
+macro_rules! sse_quad {
+    ($xq:expr, $w:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
+        let (xq, w) = ($xq, $w);
+        $s0 = _mm_add_epi32(
+            $s0,
+            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w)), $ones),
         );
-        for (segment, &start) in segments.starts.iter().enumerate() {
-            let inputs = &x[start..start + row];
-            let panel_row = &w[segment * row * 16..(segment + 1) * row * 16];
-            for (bytes, quad_weights) in inputs.chunks_exact(4).zip(panel_row.chunks_exact(64)) {
-                let bytes = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
-                if bytes == 0 {
-                    continue;
-                }
-                let xs = _mm_set1_epi32(bytes as i32);
-                let base = quad_weights.as_ptr().cast::<__m128i>();
-                // SAFETY: `quad_weights` is 64 bytes (an exact chunk); each load reads 16 of
-                // them, unaligned.
-                let (w0, w1, w2, w3) = unsafe {
-                    (
-                        _mm_loadu_si128(base),
-                        _mm_loadu_si128(base.add(1)),
-                        _mm_loadu_si128(base.add(2)),
-                        _mm_loadu_si128(base.add(3)),
-                    )
-                };
-                s0 = _mm_add_epi32(s0, _mm_madd_epi16(_mm_maddubs_epi16(xs, w0), ones));
-                s1 = _mm_add_epi32(s1, _mm_madd_epi16(_mm_maddubs_epi16(xs, w1), ones));
-                s2 = _mm_add_epi32(s2, _mm_madd_epi16(_mm_maddubs_epi16(xs, w2), ones));
-                s3 = _mm_add_epi32(s3, _mm_madd_epi16(_mm_maddubs_epi16(xs, w3), ones));
-            }
-        }
-        if let Ok(out) = <&mut [i32; 16]>::try_from(&mut *out) {
-            let target = out.as_mut_ptr().cast::<__m128i>();
-            // SAFETY: four stores of four lanes into the 16 of `out`.
-            unsafe {
-                _mm_storeu_si128(target, s0);
-                _mm_storeu_si128(target.add(1), s1);
-                _mm_storeu_si128(target.add(2), s2);
-                _mm_storeu_si128(target.add(3), s3);
-            }
-        } else {
-            let mut lanes = [0i32; 16];
-            let target = lanes.as_mut_ptr().cast::<__m128i>();
-            // SAFETY: as above, into `lanes`.
-            unsafe {
-                _mm_storeu_si128(target, s0);
-                _mm_storeu_si128(target.add(1), s1);
-                _mm_storeu_si128(target.add(2), s2);
-                _mm_storeu_si128(target.add(3), s3);
-            }
-            for (o, &lane) in out.iter_mut().zip(&lanes) {
-                *o = lane;
-            }
-        }
+        $s1 = _mm_add_epi32(
+            $s1,
+            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w.add(1))), $ones),
+        );
+        $s2 = _mm_add_epi32(
+            $s2,
+            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w.add(2))), $ones),
+        );
+        $s3 = _mm_add_epi32(
+            $s3,
+            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w.add(3))), $ones),
+        );
+    }};
+}
+
+/// [`sse_quad`] for quad `$lane` of the group in `$xs`, in assembly: per weight vector one
+/// `pshufd` (the spread quad, also the copy `pmaddubsw` overwrites), `pmaddubsw` with the
+/// aligned weights as its memory operand, `pmaddwd`, `paddd`: sixteen instructions in seven
+/// vector registers. Why assembly: on the V5's eight registers the compiler interleaves the
+/// four quads of a group (the Atom's scheduling model) and spills sums and spread quads to
+/// the stack, about 40 % more instructions a group (callgrind); an `asm!` block is not
+/// reordered across. The same instructions as the intrinsics, so the same sums.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+macro_rules! sse_quad_asm {
+    ($xs:expr, $lane:literal, $w:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {
+        // Inside the caller's `unsafe` block: reads the 64 bytes at `$w` (aligned, inside
+        // the panel), writes only the named registers; no stack, flags untouched.
+        core::arch::asm!(
+            concat!("pshufd {t}, {x}, ", $lane),
+            "pmaddubsw {t}, xmmword ptr [{w}]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            concat!("pshufd {t}, {x}, ", $lane),
+            "pmaddubsw {t}, xmmword ptr [{w} + 16]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            concat!("pshufd {t}, {x}, ", $lane),
+            "pmaddubsw {t}, xmmword ptr [{w} + 32]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s2}, {t}",
+            concat!("pshufd {t}, {x}, ", $lane),
+            "pmaddubsw {t}, xmmword ptr [{w} + 48]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s3}, {t}",
+            x = in(xmm_reg) $xs,
+            w = in(reg) $w,
+            ones = in(xmm_reg) $ones,
+            t = out(xmm_reg) _,
+            s0 = inout(xmm_reg) $s0,
+            s1 = inout(xmm_reg) $s1,
+            s2 = inout(xmm_reg) $s2,
+            s3 = inout(xmm_reg) $s3,
+            options(pure, readonly, nostack, preserves_flags),
+        )
+    };
+}
+
+/// The larger of two vectors of four `i32`, with SSE2 only (`pmaxsd` is SSE4.1, which the
+/// V5's Atom lacks).
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[inline(always)]
+fn max_epi32_sse2(a: __m128i, b: __m128i) -> __m128i {
+    // SAFETY: SSE2 is part of every x86 target this crate builds for (i686 and x86-64).
+    unsafe {
+        let greater = _mm_cmpgt_epi32(a, b);
+        _mm_or_si128(_mm_and_si128(greater, a), _mm_andnot_si128(greater, b))
     }
 }
 
-/// [`dense_portable`] with AVX2 (`vpmaddubsw`, `vpmaddwd`): panels of 32 outputs.
+/// [`largest_portable`] on 128-bit vectors, panels of 16 outputs held in four registers. The
+/// inputs are read a group (sixteen bytes) at a time: one load, one test that skips sixteen
+/// zero inputs, and `pshufd` to spread each quad over the lanes, which also gives
+/// `pmaddubsw` the copy it overwrites; the weights are its aligned memory operand. That is
+/// four instructions per sixteen outputs of a quad, with the sums, the input, the ones and
+/// one product in seven of the V5's eight registers. Each row's sums then go into the
+/// running maxima (in memory on the V5: once per row, not per quad).
+///
+/// Stamped out twice with the same body: for SSSE3 (the Atoms), and for AVX2 machines'
+/// layers of at most 16 outputs, where a 32-wide panel would be half zeros (the same code in
+/// VEX encoding).
+macro_rules! sse_panels_of_16 {
+    ($(#[$doc:meta])* $name:ident, $feature:literal, $group:ident) => {
+        $(#[$doc])*
+        ///
+        /// # Safety
+        #[doc = concat!("The CPU must have ", $feature, "; `weights.width()` must be 16.")]
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        #[target_feature(enable = $feature)]
+        pub(crate) unsafe fn $name(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+            assert_eq!(weights.width, 16);
+            let rows = weights.rows_in(x, acc);
+            let row = weights.padded_inputs();
+            let ones = _mm_set1_epi16(1);
+            for (panel, out) in acc.chunks_mut(16).enumerate() {
+                let w = weights.panel(panel);
+                assert!(w.as_ptr().cast::<WeightBlock>().is_aligned());
+                let mut largest = [_mm_set1_epi32(i32::MIN); 4];
+                for inputs in x.chunks_exact(row).take(rows) {
+                    let (mut s0, mut s1, mut s2, mut s3) = (
+                        _mm_setzero_si128(),
+                        _mm_setzero_si128(),
+                        _mm_setzero_si128(),
+                        _mm_setzero_si128(),
+                    );
+                    for (group, group_weights) in
+                        inputs.chunks_exact(GROUP).zip(w.chunks_exact(GROUP * 16))
+                    {
+                        // SAFETY: `group` is 16 bytes (an exact chunk), read unaligned;
+                        // `group_weights` is 256 bytes, four quads' 64, each on a 64-byte
+                        // boundary (the panel is aligned and a quad's weights are 64
+                        // bytes), read aligned 16 at a time.
+                        unsafe {
+                            let xs = _mm_loadu_si128(group.as_ptr().cast::<__m128i>());
+                            if _mm_movemask_epi8(_mm_cmpeq_epi8(xs, _mm_setzero_si128())) == 0xffff {
+                                continue;
+                            }
+                            let base = group_weights.as_ptr().cast::<__m128i>();
+                            $group!(xs, base, ones, [s0, s1, s2, s3]);
+                        }
+                    }
+                    for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
+                        *most = max_epi32_sse2(*most, sums);
+                    }
+                }
+                let mut lanes = [0i32; 16];
+                let target = lanes.as_mut_ptr().cast::<__m128i>();
+                // SAFETY: four stores of four lanes into the 16 of `lanes`.
+                unsafe {
+                    for (k, most) in largest.into_iter().enumerate() {
+                        _mm_storeu_si128(target.add(k), most);
+                    }
+                }
+                out.copy_from_slice(&lanes[..out.len()]);
+            }
+        }
+    };
+}
+
+/// One group's four quads, each quad in assembly ([`sse_quad_asm`]): legacy SSE encoding.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+macro_rules! group_asm {
+    ($xs:expr, $base:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
+        let (xs, base) = ($xs, $base);
+        sse_quad_asm!(xs, "0x00", base, $ones, [$s0, $s1, $s2, $s3]);
+        sse_quad_asm!(xs, "0x55", base.add(4), $ones, [$s0, $s1, $s2, $s3]);
+        sse_quad_asm!(xs, "0xaa", base.add(8), $ones, [$s0, $s1, $s2, $s3]);
+        sse_quad_asm!(xs, "0xff", base.add(12), $ones, [$s0, $s1, $s2, $s3]);
+    }};
+}
+
+/// One group's four quads with intrinsics ([`sse_quad`]), which the compiler encodes as VEX
+/// in an AVX2 function (no copies needed: three-operand forms).
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+macro_rules! group_intrinsics {
+    ($xs:expr, $base:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
+        let (xs, base) = ($xs, $base);
+        sse_quad!(
+            _mm_shuffle_epi32::<0x00>(xs),
+            base,
+            $ones,
+            [$s0, $s1, $s2, $s3]
+        );
+        sse_quad!(
+            _mm_shuffle_epi32::<0x55>(xs),
+            base.add(4),
+            $ones,
+            [$s0, $s1, $s2, $s3]
+        );
+        sse_quad!(
+            _mm_shuffle_epi32::<0xaa>(xs),
+            base.add(8),
+            $ones,
+            [$s0, $s1, $s2, $s3]
+        );
+        sse_quad!(
+            _mm_shuffle_epi32::<0xff>(xs),
+            base.add(12),
+            $ones,
+            [$s0, $s1, $s2, $s3]
+        );
+    }};
+}
+
+// In assembly on both robots' builds. Callgrind, int8 CNN forward: V5 6.46 M -> 5.57 M,
+// V6 4.86 M -> 4.64 M; the host's generic x86-64 build counts a little more with it (5.01 M
+// -> 5.14 M) and is not what the robot runs.
+sse_panels_of_16!(
+    /// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`), panels of 16 outputs.
+    largest_ssse3,
+    "ssse3",
+    group_asm
+);
+sse_panels_of_16!(
+    /// [`largest_ssse3`]'s code on an AVX2 machine (VEX-encoded), for layers of at most 16
+    /// outputs.
+    largest_avx2_16,
+    "avx2",
+    group_intrinsics
+);
+
+/// [`largest_portable`] with AVX2 (`vpmaddubsw`, `vpmaddwd`): panels of 32 outputs in four
+/// registers; a group of sixteen input bytes copied to both 128-bit halves and each quad
+/// spread over all lanes with `vpshufd`, so one spread serves 32 outputs' four products.
 ///
 /// # Safety
 /// The CPU must have AVX2; `weights.width()` must be 32.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "avx2")]
-pub(crate) unsafe fn dense_avx2(
-    x: &[u8],
-    segments: Segments<'_>,
-    weights: &QuadPanels,
-    acc: &mut [i32],
-) {
-    debug_assert_eq!(weights.width, 32);
-    segments.check(x, weights);
-    assert_eq!(acc.len(), weights.outputs);
+pub(crate) unsafe fn largest_avx2(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+    assert_eq!(weights.width, 32);
+    let rows = weights.rows_in(x, acc);
+    let row = weights.padded_inputs();
     let ones = _mm256_set1_epi16(1);
-    let row = 4 * segments.quads;
+    macro_rules! quad {
+        ($xq:expr, $w:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
+            let (xq, w) = ($xq, $w);
+            $s0 = _mm256_add_epi32(
+                $s0,
+                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w)), ones),
+            );
+            $s1 = _mm256_add_epi32(
+                $s1,
+                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(1))), ones),
+            );
+            $s2 = _mm256_add_epi32(
+                $s2,
+                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(2))), ones),
+            );
+            $s3 = _mm256_add_epi32(
+                $s3,
+                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(3))), ones),
+            );
+        }};
+    }
     for (panel, out) in acc.chunks_mut(32).enumerate() {
         let w = weights.panel(panel);
-        let (mut s0, mut s1, mut s2, mut s3) = (
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-        );
-        for (segment, &start) in segments.starts.iter().enumerate() {
-            let inputs = &x[start..start + row];
-            let panel_row = &w[segment * row * 32..(segment + 1) * row * 32];
-            for (bytes, quad_weights) in inputs.chunks_exact(4).zip(panel_row.chunks_exact(128)) {
-                let bytes = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
-                if bytes == 0 {
-                    continue;
+        let mut largest = [_mm256_set1_epi32(i32::MIN); 4];
+        for inputs in x.chunks_exact(row).take(rows) {
+            let (mut s0, mut s1, mut s2, mut s3) = (
+                _mm256_setzero_si256(),
+                _mm256_setzero_si256(),
+                _mm256_setzero_si256(),
+                _mm256_setzero_si256(),
+            );
+            for (group, group_weights) in inputs.chunks_exact(GROUP).zip(w.chunks_exact(GROUP * 32))
+            {
+                // SAFETY: `group` is 16 bytes and `group_weights` 512 (exact chunks), read
+                // unaligned.
+                unsafe {
+                    let xs = _mm_loadu_si128(group.as_ptr().cast::<__m128i>());
+                    if _mm_movemask_epi8(_mm_cmpeq_epi8(xs, _mm_setzero_si128())) == 0xffff {
+                        continue;
+                    }
+                    let xs = _mm256_broadcastsi128_si256(xs);
+                    let base = group_weights.as_ptr().cast::<__m256i>();
+                    quad!(_mm256_shuffle_epi32::<0x00>(xs), base, [s0, s1, s2, s3]);
+                    quad!(
+                        _mm256_shuffle_epi32::<0x55>(xs),
+                        base.add(4),
+                        [s0, s1, s2, s3]
+                    );
+                    quad!(
+                        _mm256_shuffle_epi32::<0xaa>(xs),
+                        base.add(8),
+                        [s0, s1, s2, s3]
+                    );
+                    quad!(
+                        _mm256_shuffle_epi32::<0xff>(xs),
+                        base.add(12),
+                        [s0, s1, s2, s3]
+                    );
                 }
-                let xs = _mm256_set1_epi32(bytes as i32);
-                let base = quad_weights.as_ptr().cast::<__m256i>();
-                // SAFETY: `quad_weights` is 128 bytes (an exact chunk); each load reads 32
-                // of them, unaligned.
-                let (w0, w1, w2, w3) = unsafe {
-                    (
-                        _mm256_loadu_si256(base),
-                        _mm256_loadu_si256(base.add(1)),
-                        _mm256_loadu_si256(base.add(2)),
-                        _mm256_loadu_si256(base.add(3)),
-                    )
-                };
-                s0 = _mm256_add_epi32(s0, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w0), ones));
-                s1 = _mm256_add_epi32(s1, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w1), ones));
-                s2 = _mm256_add_epi32(s2, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w2), ones));
-                s3 = _mm256_add_epi32(s3, _mm256_madd_epi16(_mm256_maddubs_epi16(xs, w3), ones));
+            }
+            for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
+                *most = _mm256_max_epi32(*most, sums);
             }
         }
         let mut lanes = [0i32; 32];
         let target = lanes.as_mut_ptr().cast::<__m256i>();
         // SAFETY: four stores of eight lanes into the 32 of `lanes`.
         unsafe {
-            _mm256_storeu_si256(target, s0);
-            _mm256_storeu_si256(target.add(1), s1);
-            _mm256_storeu_si256(target.add(2), s2);
-            _mm256_storeu_si256(target.add(3), s3);
+            for (k, most) in largest.into_iter().enumerate() {
+                _mm256_storeu_si256(target.add(k), most);
+            }
         }
-        for (o, &lane) in out.iter_mut().zip(&lanes) {
-            *o = lane;
-        }
+        out.copy_from_slice(&lanes[..out.len()]);
     }
 }
 
-/// Which int8 dense kernel a plan calls, chosen once at load for the instruction set it was
-/// lowered for and checked against this CPU there: AVX2 (panels of 32 outputs) where the
-/// float kernels are AVX2 or AVX-512, SSSE3 (16) on the SSSE3 and SSE4.2 sets (the V5 and
-/// V6 Atoms), the portable one on SSE2 and the portable set. The field is private, so a
-/// kernel this CPU lacks cannot be named.
+/// Which int8 kernel a plan calls, chosen once at load for the instruction set it was
+/// lowered for and checked against this CPU there: AVX2 (panels of 32 outputs, or 16 for
+/// layers that narrow) where the float kernels are AVX2 or AVX-512, SSSE3 (16) on the SSSE3
+/// and SSE4.2 sets (the V5 and V6 Atoms), the portable one on SSE2 and the portable set. The
+/// field is private, so a kernel this CPU lacks cannot be named.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Int8Kernel(Kind);
 
@@ -367,90 +525,69 @@ impl Int8Kernel {
         }
     }
 
-    /// The panel width its weights must be laid out in.
-    pub(crate) fn width(self) -> usize {
+    /// The panel width a layer of `outputs` outputs is laid out in for this kernel: 16, or on
+    /// AVX2 32 where the layer has more than 16 (a 32-wide panel of a 16-output layer would
+    /// be half zeros, so those take the 16-wide code in AVX2's encoding).
+    pub(crate) fn width_for(self, outputs: usize) -> usize {
         match self.0 {
-            Kind::Portable | Kind::Ssse3 => 16,
-            Kind::Avx2 => 32,
+            Kind::Avx2 if outputs > 16 => 32,
+            _ => 16,
         }
     }
 
-    /// `acc = W x` in exact integers, `x` read as `segments` say; `weights` laid out for
-    /// this kernel ([`Self::width`]).
+    /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers, `x` holding whole rows of
+    /// [`QuadPanels::padded_inputs`] bytes one after the other; `weights` laid out for this
+    /// kernel ([`Self::width_for`]). One row is a plain product.
     #[inline]
-    pub(crate) fn product(
-        self,
-        x: &[u8],
-        segments: Segments<'_>,
-        weights: &QuadPanels,
-        acc: &mut [i32],
-    ) {
-        assert_eq!(weights.width, self.width());
-        match self.0 {
-            Kind::Portable => dense_portable(x, segments, weights, acc),
+    pub(crate) fn largest(self, x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+        assert_eq!(weights.width, self.width_for(weights.outputs));
+        match (self.0, weights.width) {
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; width checked.
-            Kind::Ssse3 => unsafe { dense_ssse3(x, segments, weights, acc) },
+            (Kind::Ssse3, _) => unsafe { largest_ssse3(x, weights, acc) },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; width checked.
-            Kind::Avx2 => unsafe { dense_avx2(x, segments, weights, acc) },
-            #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
-            _ => dense_portable(x, segments, weights, acc),
+            (Kind::Avx2, 32) => unsafe { largest_avx2(x, weights, acc) },
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: as above; 16 wide.
+            (Kind::Avx2, _) => unsafe { largest_avx2_16(x, weights, acc) },
+            _ => largest_portable(x, weights, acc),
         }
-    }
-
-    /// [`Self::product`] of one dense row: `x` holds [`QuadPanels::padded_inputs`] bytes.
-    #[inline]
-    pub(crate) fn dense(self, x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-        let segments = Segments {
-            starts: &[0],
-            quads: weights.padded_inputs() / 4,
-        };
-        self.product(x, segments, weights, acc);
     }
 }
 
-/// The shape of an int8 convolution's input and window: `codes` is the zero-bordered map
+/// The shape of an int8 convolution's input and window: the codes are the zero-bordered map
 /// `[padded_h][padded_w][c]` (the border holds the zero point, the integer of 0.0). A window
-/// is read one of two ways, chosen by [`Window::new`]:
-/// - in place: each kernel row is one segment ([`Segments`]), the weights' rows are
-///   `[ky][kx * c, rounded up to whole quads]`;
-/// - gathered, where kernel rows are short and rounding each up to whole quads would waste
-///   quads (the cameras' one-channel 5x5 layers: rows of 5 bytes take 2 quads each, 10 a
-///   window, where the window's 25 bytes fill 7): the rows are copied one after the other
-///   into one run of bytes, 8 bytes a row (one load and one store; a row's extra bytes are
-///   overwritten by the next row, the last one's meet zero weights), and the weights are
-///   `[ky * kx * c, rounded up to whole quads]`. The copy costs about what one quad does.
+/// is copied out of the map into a run of [`Self::padded_len`] bytes, kernel row after kernel
+/// row, where the weights `[ky][kx][c]` meet it (zero weights after). Rows of at most 8 bytes
+/// (the cameras' one-channel 5x5 layers: 5) are copied with one 8-byte load and store each:
+/// the extra bytes are overwritten by the next row, the last row's lie inside the run and
+/// meet zero weights (a `memcpy` call per 5-byte row was more than the V5's first layer
+/// could afford); longer rows with one slice copy each.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Window {
     pub padded_width: usize,
     pub channels: usize,
     pub kernel: [usize; 2],
     pub stride: [usize; 2],
-    pub gather: bool,
 }
 
-/// The bytes one gathered row copies.
-const GATHERED_ROW: usize = 8;
+/// Rows up to this many bytes are copied 8 bytes at a time.
+const SHORT_ROW: usize = 8;
 
 impl Window {
-    /// A window read the cheaper way: gathered where that takes fewer quads.
     pub(crate) fn new(
         padded_width: usize,
         channels: usize,
         kernel: [usize; 2],
         stride: [usize; 2],
     ) -> Self {
-        let mut window = Self {
+        Self {
             padded_width,
             channels,
             kernel,
             stride,
-            gather: false,
-        };
-        let gathered_quads = (kernel[0] * window.row()).div_ceil(4);
-        window.gather = window.row() <= GATHERED_ROW && gathered_quads < kernel[0] * window.quads();
-        window
+        }
     }
 
     /// The bytes of one kernel row of a window.
@@ -458,99 +595,86 @@ impl Window {
         self.kernel[1] * self.channels
     }
 
-    /// Quads per kernel row read in place, rounded up.
-    pub(crate) fn quads(&self) -> usize {
-        self.row().div_ceil(4)
+    /// The bytes a window's copy spans: its rows, and the last short row's 8-byte store.
+    fn extent(&self) -> usize {
+        let rows = self.kernel[0] * self.row();
+        if self.row() <= SHORT_ROW && self.kernel[0] > 0 {
+            rows.max((self.kernel[0] - 1) * self.row() + SHORT_ROW)
+        } else {
+            rows
+        }
     }
 
-    /// The weights' inputs: every kernel row rounded up to whole quads, or (gathered) the
-    /// whole window rounded up once.
+    /// The weights' inputs and the bytes of one copied window: its extent rounded up to
+    /// whole groups of 16.
     pub(crate) fn padded_len(&self) -> usize {
-        if self.gather {
-            (self.kernel[0] * self.row()).div_ceil(4) * 4
-        } else {
-            self.kernel[0] * self.quads() * 4
-        }
+        self.extent().div_ceil(GROUP) * GROUP
     }
 
-    /// How many bytes past the map a bottom-right window's last row reads (rounding up to
-    /// quads, or the 8 bytes a gathered row copies): the codes buffer holds them too.
+    /// How many bytes past the map a bottom-right window's last short row reads (its 8-byte
+    /// load): the codes buffer holds them too.
     pub(crate) fn slack(&self) -> usize {
-        if self.gather {
-            GATHERED_ROW - self.row()
+        if self.row() <= SHORT_ROW {
+            SHORT_ROW - self.row()
         } else {
-            self.quads() * 4 - self.row()
+            0
         }
     }
 
-    /// The scratch a gathered window is copied into (empty where windows are read in place).
-    pub(crate) fn scratch(&self) -> Vec<u8> {
-        if self.gather {
-            vec![
-                0;
-                self.padded_len()
-                    .max((self.kernel[0] - 1) * self.row() + GATHERED_ROW)
-            ]
-        } else {
-            Vec::new()
-        }
-    }
-
-    /// `rows`, `[out][ky][kx * c]`, laid out as the kernels read this window: each output's
-    /// [`Self::padded_len`] weights, zero where they meet padding.
+    /// `rows`, `[out][ky][kx * c]`, laid out as a copied window is: each output's
+    /// [`Self::padded_len`] weights, zero after the window.
     pub(crate) fn weights(&self, rows: &[i8], outputs: usize) -> Vec<i8> {
-        let (row, kh) = (self.row(), self.kernel[0]);
-        let step = if self.gather { row } else { self.quads() * 4 };
+        let len = self.kernel[0] * self.row();
         let mut laid_out = vec![0; outputs * self.padded_len()];
-        for (o, weights) in rows
-            .chunks_exact((kh * row).max(1))
-            .take(outputs)
-            .enumerate()
-        {
-            for (ky, kernel_row) in weights.chunks_exact(row.max(1)).enumerate() {
-                laid_out[o * self.padded_len() + ky * step..][..row].copy_from_slice(kernel_row);
-            }
+        for (o, weights) in rows.chunks_exact(len.max(1)).take(outputs).enumerate() {
+            laid_out[o * self.padded_len()..][..len].copy_from_slice(weights);
         }
         laid_out
     }
 
-    /// Where each kernel row of output pixel `(y, x)`'s window starts in the map.
+    /// Copies the window of output pixel `(y, x)` out of `codes` into `out`
+    /// ([`Self::padded_len`] bytes); the bytes after the window are left as they are (they
+    /// meet zero weights). Bounds are checked once per window, not per row (the V5's first
+    /// layer copies 24,000 rows a forward).
     #[inline(always)]
-    pub(crate) fn starts(&self, [y, x]: [usize; 2], starts: &mut [usize]) {
-        for (ky, start) in starts.iter_mut().enumerate() {
-            *start = ((y * self.stride[0] + ky) * self.padded_width + x * self.stride[1])
-                * self.channels;
+    pub(crate) fn gather(&self, codes: &[u8], [y, x]: [usize; 2], out: &mut [u8]) {
+        let (row, kh) = (self.row(), self.kernel[0]);
+        let pitch = self.padded_width * self.channels;
+        let first = ((y * self.stride[0]) * self.padded_width + x * self.stride[1]) * self.channels;
+        let out = &mut out[..self.padded_len()];
+        if kh == 0 {
+            return;
         }
-    }
-
-    /// `sums = W window` of the window whose rows start at `starts`, read as this window is
-    /// ([`Self::new`]); `scratch` is [`Self::scratch`].
-    #[inline(always)]
-    pub(crate) fn product(
-        &self,
-        kernel: Int8Kernel,
-        codes: &[u8],
-        starts: &[usize],
-        scratch: &mut [u8],
-        weights: &QuadPanels,
-        sums: &mut [i32],
-    ) {
-        if self.gather {
-            let row = self.row();
-            for (ky, &start) in starts.iter().enumerate() {
-                let mut bytes = [0u8; GATHERED_ROW];
-                bytes.copy_from_slice(&codes[start..start + GATHERED_ROW]);
-                scratch[ky * row..ky * row + GATHERED_ROW].copy_from_slice(&bytes);
+        if row > SHORT_ROW {
+            for (ky, target) in out.chunks_exact_mut(row).take(kh).enumerate() {
+                target.copy_from_slice(&codes[first + ky * pitch..][..row]);
             }
-            // The bytes after the window (the last row's extra bytes, or an earlier pixel's)
-            // meet zero weights: they are left as they are.
-            kernel.dense(&scratch[..self.padded_len()], weights, sums);
-        } else {
-            let segments = Segments {
-                starts,
-                quads: self.quads(),
-            };
-            kernel.product(codes, segments, weights, sums);
+            return;
+        }
+        let end = kh
+            .checked_sub(1)
+            .and_then(|rows| rows.checked_mul(pitch))
+            .and_then(|offset| offset.checked_add(first))
+            .and_then(|start| start.checked_add(SHORT_ROW));
+        assert!(
+            end.is_some_and(|end| end <= codes.len()) && (kh - 1) * row + SHORT_ROW <= out.len(),
+            "int8 window outside its map"
+        );
+        for ky in 0..kh {
+            // SAFETY: row `ky` reads `codes[first + ky * pitch..][..8]`, inside `codes` as
+            // the last row's end is (checked above), and writes `out[ky * row..][..8]`,
+            // inside `out` as the last row's is (checked above; `padded_len` covers it).
+            unsafe {
+                let bytes = codes
+                    .as_ptr()
+                    .add(first + ky * pitch)
+                    .cast::<[u8; SHORT_ROW]>()
+                    .read_unaligned();
+                out.as_mut_ptr()
+                    .add(ky * row)
+                    .cast::<[u8; SHORT_ROW]>()
+                    .write_unaligned(bytes);
+            }
         }
     }
 }
@@ -583,24 +707,27 @@ mod tests {
         }
     }
 
-    /// Every kernel this CPU runs, on `x` (padded to whole quads) and `rows`.
+    /// Every kernel this CPU runs, on the rows `xs` (each padded to whole groups) and the
+    /// weights `rows`: the largest product per output.
     fn every_kernel(
-        x: &[u8],
+        xs: &[Vec<u8>],
         rows: &[i8],
         outputs: usize,
         inputs: usize,
     ) -> Vec<(&'static str, Vec<i32>)> {
-        let mut padded = x.to_vec();
-        padded.resize(inputs.div_ceil(4) * 4, 0);
-        let one = Segments {
-            starts: &[0],
-            quads: padded.len() / 4,
-        };
+        let padded: Vec<u8> = xs
+            .iter()
+            .flat_map(|x| {
+                let mut x = x.clone();
+                x.resize(inputs.div_ceil(GROUP) * GROUP, 0);
+                x
+            })
+            .collect();
         let mut results = Vec::new();
         for width in [4, 8, 16] {
             let weights = QuadPanels::new(rows, outputs, inputs, width).expect("in range");
             let mut acc = vec![0; outputs];
-            dense_portable(&padded, one, &weights, &mut acc);
+            largest_portable(&padded, &weights, &mut acc);
             results.push(("portable", acc));
         }
         #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
@@ -609,40 +736,79 @@ mod tests {
                 let weights = QuadPanels::new(rows, outputs, inputs, 16).expect("in range");
                 let mut acc = vec![0; outputs];
                 // SAFETY: SSSE3 detected; width 16.
-                unsafe { dense_ssse3(&padded, one, &weights, &mut acc) };
+                unsafe { largest_ssse3(&padded, &weights, &mut acc) };
                 results.push(("ssse3", acc));
             }
             if std::arch::is_x86_feature_detected!("avx2") {
                 let weights = QuadPanels::new(rows, outputs, inputs, 32).expect("in range");
                 let mut acc = vec![0; outputs];
                 // SAFETY: AVX2 detected; width 32.
-                unsafe { dense_avx2(&padded, one, &weights, &mut acc) };
+                unsafe { largest_avx2(&padded, &weights, &mut acc) };
                 results.push(("avx2", acc));
+                let weights = QuadPanels::new(rows, outputs, inputs, 16).expect("in range");
+                let mut acc = vec![0; outputs];
+                // SAFETY: AVX2 detected; width 16.
+                unsafe { largest_avx2_16(&padded, &weights, &mut acc) };
+                results.push(("avx2, 16 wide", acc));
             }
         }
         results
     }
 
+    /// The largest of the definition's products over the rows `xs`.
+    fn largest_reference(xs: &[Vec<u8>], rows: &[i8], outputs: usize, inputs: usize) -> Vec<i32> {
+        let products: Vec<Vec<i32>> = xs
+            .iter()
+            .map(|x| reference(x, rows, outputs, inputs))
+            .collect();
+        (0..outputs)
+            .map(|o| products.iter().map(|p| p[o]).max().expect("a row"))
+            .collect()
+    }
+
     #[test]
     fn every_kernel_equals_the_integer_definition_on_random_layers() {
         let mut rng = Lcg(29);
-        for (outputs, inputs) in [(128, 2560), (3, 128), (37, 13), (16, 4), (1, 1), (33, 7)] {
+        // Whole groups of sixteen inputs and groups padded with zero weights; one row (a
+        // dense layer) and the four windows of a 2x2 pool.
+        let layers = [
+            (128, 2560),
+            (3, 128),
+            (37, 13),
+            (16, 4),
+            (1, 1),
+            (33, 7),
+            (20, 30),
+            (16, 25),
+            (48, 100),
+        ];
+        for (outputs, inputs) in layers {
             let rows: Vec<i8> = (0..outputs * inputs)
                 .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
                 .collect();
-            // Half the inputs zero, as after ReLU, so that skipped quads are tested too.
-            let x: Vec<u8> = (0..inputs)
-                .map(|_| {
-                    if rng.next().is_multiple_of(2) {
-                        0
-                    } else {
-                        rng.next() as u8
-                    }
-                })
-                .collect();
-            let expected = reference(&x, &rows, outputs, inputs);
-            for (kernel, acc) in every_kernel(&x, &rows, outputs, inputs) {
-                assert_eq!(acc, expected, "{kernel}, {outputs}x{inputs}");
+            for count in [1, 4] {
+                // Half the inputs zero, as after ReLU, and every other run of 24 inputs
+                // zero, so that skipped groups of 16 are tested too.
+                let xs: Vec<Vec<u8>> = (0..count)
+                    .map(|_| {
+                        (0..inputs)
+                            .map(|i| {
+                                if rng.next().is_multiple_of(2) || (i / 24) % 2 == 1 {
+                                    0
+                                } else {
+                                    rng.next() as u8
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let expected = largest_reference(&xs, &rows, outputs, inputs);
+                for (kernel, acc) in every_kernel(&xs, &rows, outputs, inputs) {
+                    assert_eq!(
+                        acc, expected,
+                        "{kernel}, {outputs}x{inputs}, {count} row(s)"
+                    );
+                }
             }
         }
     }
@@ -652,7 +818,8 @@ mod tests {
         // Every input 255 against every weight at an end of the range: each 16-bit pair sum
         // is then +-32,640, the largest magnitudes the range allows; mixed signs in a row
         // and alternating patterns too. A saturating sum (or a kernel that adds pairs in 16
-        // bits) would differ from the definition here.
+        // bits) would differ from the definition here. Two rows: the largest of a sum and
+        // its negative (all-negative sums must win over nothing).
         let inputs = 2560;
         let outputs = 32;
         let x = vec![255u8; inputs];
@@ -678,9 +845,11 @@ mod tests {
             let rows: Vec<i8> = (0..outputs * inputs)
                 .map(|k| pattern(k / inputs, k % inputs))
                 .collect();
-            let expected = reference(&x, &rows, outputs, inputs);
-            for (kernel, acc) in every_kernel(&x, &rows, outputs, inputs) {
-                assert_eq!(acc, expected, "{kernel}, pattern {p}");
+            for xs in [vec![x.clone()], vec![x.clone(), x.clone()]] {
+                let expected = largest_reference(&xs, &rows, outputs, inputs);
+                for (kernel, acc) in every_kernel(&xs, &rows, outputs, inputs) {
+                    assert_eq!(acc, expected, "{kernel}, pattern {p}");
+                }
             }
         }
         assert_eq!(
@@ -725,63 +894,89 @@ mod tests {
     }
 
     #[test]
-    fn a_convolution_read_in_place_equals_the_integer_definition() {
+    fn a_row_count_the_weights_do_not_divide_is_refused() {
+        let weights = QuadPanels::new(&[1; 3 * 20], 3, 20, 16).expect("in range");
+        assert_eq!(weights.padded_inputs(), 32);
+        let mut acc = [0; 3];
+        for x in [vec![0u8; 31], vec![0u8; 33], Vec::new()] {
+            let refused = std::panic::catch_unwind(|| {
+                largest_portable(&x, &weights, &mut acc.clone());
+            });
+            assert!(refused.is_err(), "{} bytes", x.len());
+        }
+        largest_portable(&[1; 64], &weights, &mut acc);
+        assert_eq!(acc, [20; 3]);
+    }
+
+    #[test]
+    fn pooled_windows_of_a_convolution_equal_the_integer_definition() {
         let mut rng = Lcg(5);
         for (ph, pw, c, oc, [kh, kw], stride) in [
             (13, 17, 3, 10, [5, 5], [2, 2]),
             (9, 11, 1, 16, [5, 5], [2, 2]),
             (7, 7, 8, 33, [3, 3], [1, 1]),
+            (8, 8, 1, 4, [4, 4], [1, 1]),
         ] {
-            let chosen = Window::new(pw, c, [kh, kw], stride);
-            // The one-channel 5x5 window is gathered, the others read in place.
-            assert_eq!(chosen.gather, c == 1, "{c} channels");
-            // Both ways where both can be: a gathered row copies 8 bytes.
-            let ways = [false, true].map(|gather| Window { gather, ..chosen });
-            for window in ways.into_iter().filter(|w| !w.gather || w.row() <= 8) {
-                // The map's codes, then the slack a last window row reads past it.
-                let mut codes: Vec<u8> = (0..ph * pw * c).map(|_| rng.next() as u8).collect();
-                codes.extend((0..window.slack()).map(|_| rng.next() as u8));
-                let rows: Vec<i8> = (0..oc * kh * kw * c)
-                    .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
-                    .collect();
-                let laid_out = window.weights(&rows, oc);
-                let (oh, ow) = ((ph - kh) / stride[0] + 1, (pw - kw) / stride[1] + 1);
-                for kernel in [
-                    Int8Kernel::PORTABLE,
-                    Int8Kernel::ssse3(),
-                    Int8Kernel::avx2(),
-                ] {
-                    let weights =
-                        QuadPanels::new(&laid_out, oc, window.padded_len(), kernel.width())
-                            .expect("in range");
-                    let mut starts = vec![0; kh];
-                    let mut sums = vec![0i32; oc];
-                    // Stale bytes in the scratch must not matter.
-                    let mut scratch = window.scratch();
-                    scratch.fill(0xa5);
-                    for (y, x) in (0..oh).flat_map(|y| (0..ow).map(move |x| (y, x))) {
-                        window.starts([y, x], &mut starts);
-                        window.product(kernel, &codes, &starts, &mut scratch, &weights, &mut sums);
-                        for (o, &sum) in sums.iter().enumerate() {
-                            let mut expected = 0i64;
-                            for ky in 0..kh {
-                                for kx in 0..kw {
-                                    for i in 0..c {
-                                        let pixel =
-                                            ((y * stride[0] + ky) * pw + x * stride[1] + kx) * c;
-                                        let w = rows[((o * kh + ky) * kw + kx) * c + i];
-                                        expected += i64::from(codes[pixel + i]) * i64::from(w);
-                                    }
-                                }
-                            }
-                            assert_eq!(
-                                i64::from(sum),
-                                expected,
-                                "{}, gathered {}: ({y}, {x}) output {o}",
-                                kernel.name(),
-                                window.gather
-                            );
+            let window = Window::new(pw, c, [kh, kw], stride);
+            assert!(window.padded_len().is_multiple_of(GROUP));
+            // The map's codes, then the slack a last window row reads past it.
+            let mut codes: Vec<u8> = (0..ph * pw * c).map(|_| rng.next() as u8).collect();
+            codes.extend((0..window.slack()).map(|_| rng.next() as u8));
+            let rows: Vec<i8> = (0..oc * kh * kw * c)
+                .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
+                .collect();
+            let laid_out = window.weights(&rows, oc);
+            let (oh, ow) = ((ph - kh) / stride[0] + 1, (pw - kw) / stride[1] + 1);
+            let definition = |y: usize, x: usize, o: usize| -> i64 {
+                let mut sum = 0i64;
+                for ky in 0..kh {
+                    for kx in 0..kw {
+                        for i in 0..c {
+                            let pixel = ((y * stride[0] + ky) * pw + x * stride[1] + kx) * c;
+                            let w = rows[((o * kh + ky) * kw + kx) * c + i];
+                            sum += i64::from(codes[pixel + i]) * i64::from(w);
                         }
+                    }
+                }
+                sum
+            };
+            for kernel in [
+                Int8Kernel::PORTABLE,
+                Int8Kernel::ssse3(),
+                Int8Kernel::avx2(),
+            ] {
+                let weights =
+                    QuadPanels::new(&laid_out, oc, window.padded_len(), kernel.width_for(oc))
+                        .expect("in range");
+                let len = window.padded_len();
+                // Stale bytes in the scratch must not matter.
+                let mut windows = vec![0xa5u8; 4 * len];
+                let mut sums = vec![0i32; oc];
+                // Each 2x2 cell of pixels (the last row and column alone where odd).
+                for (y, x) in (0..oh)
+                    .step_by(2)
+                    .flat_map(|y| (0..ow).step_by(2).map(move |x| (y, x)))
+                {
+                    let pixels: Vec<[usize; 2]> = [[y, x], [y, x + 1], [y + 1, x], [y + 1, x + 1]]
+                        .into_iter()
+                        .filter(|&[py, px]| py < oh && px < ow)
+                        .collect();
+                    for (i, &pixel) in pixels.iter().enumerate() {
+                        window.gather(&codes, pixel, &mut windows[i * len..(i + 1) * len]);
+                    }
+                    kernel.largest(&windows[..pixels.len() * len], &weights, &mut sums);
+                    for (o, &sum) in sums.iter().enumerate() {
+                        let expected = pixels
+                            .iter()
+                            .map(|&[py, px]| definition(py, px, o))
+                            .max()
+                            .expect("a pixel");
+                        assert_eq!(
+                            i64::from(sum),
+                            expected,
+                            "{}, {c} channels: cell ({y}, {x}) output {o}",
+                            kernel.name(),
+                        );
                     }
                 }
             }

@@ -314,8 +314,9 @@ impl Lowerer {
             kernel,
             stride: strides,
             out,
-            largest: vec![0; conv.sums.len()],
         });
+        // Room for a pool cell's windows, copied one after the other.
+        conv.windows = vec![0; kernel[0] * kernel[1] * conv.window.padded_len()];
         conv.out = to;
         let full = std::mem::take(&mut self.buffers[buffer]);
         self.allocated = self.allocated.saturating_sub(full.len());

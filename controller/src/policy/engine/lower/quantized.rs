@@ -376,7 +376,7 @@ impl Lowerer {
             }
         }
         let rows = window.weights(&ordered, oc);
-        let Ok(panels) = QuadPanels::new(&rows, oc, inputs, self.int8.width()) else {
+        let Ok(panels) = QuadPanels::new(&rows, oc, inputs, self.int8.width_for(oc)) else {
             return Ok(None);
         };
         let epilogue = Self::epilogue(grid, &rows, inputs, &scales, bias.to_vec());
@@ -394,8 +394,7 @@ impl Lowerer {
             kernel: self.int8,
             epilogue,
             codes: vec![grid.zero(); padded_len + window.slack()],
-            gathered: window.scratch(),
-            starts: vec![0; kh],
+            windows: vec![0; inputs],
             sums: vec![0; oc],
             out: out_buffer,
             pool: None,
@@ -436,9 +435,10 @@ impl Lowerer {
                 };
             }
         }
-        let Ok(panels) = QuadPanels::new(&rows, n, k, self.int8.width()) else {
+        let Ok(panels) = QuadPanels::new(&rows, n, k, self.int8.width_for(n)) else {
             return Ok(None);
         };
+        let padded_inputs = panels.padded_inputs();
         let scales: Vec<f32> = scales.iter().map(|&s| alpha * s).collect();
         let epilogue = Self::epilogue(grid, &rows, k, &scales, bias);
         let to = self.buffer(elements(&[m, n])?)?;
@@ -449,7 +449,7 @@ impl Lowerer {
             weights: panels,
             kernel: self.int8,
             epilogue,
-            codes: vec![0; k.div_ceil(4) * 4],
+            codes: vec![0; padded_inputs],
             sums: vec![0; n],
             to,
         }))
