@@ -35,11 +35,8 @@ def ray_cluster():
 
 def run_cluster(*arguments, cwd=None) -> str:
     """`python -m dribble_models.cluster ARGUMENTS` as a child process: its standard output."""
-    run = subprocess.run([sys.executable, "-m", "dribble_models.cluster", *arguments],
-                         capture_output=True, text=True, cwd=cwd,
-                         env={**os.environ, "PYTHONPATH": str(REPOSITORY / "models")})  # fmt: skip
-    assert run.returncode == 0, run.stdout + run.stderr
-    return run.stdout
+    return succeeds([sys.executable, "-m", "dribble_models.cluster", *arguments], cwd=cwd,
+                    env={**os.environ, "PYTHONPATH": str(REPOSITORY / "models")})  # fmt: skip
 
 
 @pytest.fixture(autouse=True)
@@ -48,10 +45,15 @@ def binaries(monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
 
 
-def dribble(*arguments, cwd=None) -> str:
-    run = subprocess.run([str(dribble_binary()), *arguments], capture_output=True, text=True, cwd=cwd)
+def succeeds(command, cwd=None, env=None) -> str:
+    """Runs `command`, which must succeed: its standard output."""
+    run = subprocess.run(command, capture_output=True, text=True, cwd=cwd, env=env)
     assert run.returncode == 0, run.stdout + run.stderr
     return run.stdout
+
+
+def dribble(*arguments, cwd=None) -> str:
+    return succeeds([str(dribble_binary()), *arguments], cwd=cwd)
 
 
 def same_directories(a: Path, b: Path) -> bool:

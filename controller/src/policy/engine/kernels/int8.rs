@@ -84,7 +84,7 @@ impl QuadPanels {
         let quads = inputs.div_ceil(GROUP) * GROUP / 4;
         let panels = outputs.div_ceil(width);
         let len = panels * quads * width * 4;
-        let mut values = vec![0i8; len];
+        let mut blocks = vec![WeightBlock([0; 64]); len.div_ceil(64)];
         for (o, row) in rows.chunks_exact(inputs.max(1)).take(outputs).enumerate() {
             let (panel, column) = (o / width, o % width);
             for (i, &w) in row.iter().enumerate() {
@@ -95,12 +95,9 @@ impl QuadPanels {
                         value: w,
                     });
                 }
-                values[((panel * quads + i / 4) * width + column) * 4 + i % 4] = w;
+                let at = ((panel * quads + i / 4) * width + column) * 4 + i % 4;
+                blocks[at / 64].0[at % 64] = w;
             }
-        }
-        let mut blocks = vec![WeightBlock([0; 64]); len.div_ceil(64)];
-        for (block, chunk) in blocks.iter_mut().zip(values.chunks(64)) {
-            block.0[..chunk.len()].copy_from_slice(chunk);
         }
         Ok(Self {
             blocks,
