@@ -16,6 +16,13 @@ from test_train import write_dataset
 REPOSITORY = Path(__file__).resolve().parents[2]
 
 
+def test_malformed_episode_counts_and_run_names_are_refused_before_anything_runs():
+    for arguments in (["--episodes", "2,x"], ["--episodes", "0"], ["--episodes", "2,,3"], ["--name", "../elsewhere"]):
+        result = subprocess.run([str(REPOSITORY / "scripts" / "dagger"), *arguments], capture_output=True, text=True, timeout=60)
+        assert result.returncode == 2, (arguments, result.stdout, result.stderr)
+        assert "scripts/dagger: --" in result.stderr, (arguments, result.stderr)
+
+
 def test_one_tiny_dagger_iteration_runs_the_whole_loop(tmp_path, rng):
     data = tmp_path / "data"
     write_dataset(data / "train", [1, 2, 3], 16, rng)
@@ -33,12 +40,14 @@ def test_one_tiny_dagger_iteration_runs_the_whole_loop(tmp_path, rng):
         DRIBBLE_CHECKPOINTS=str(checkpoints),
         DRIBBLE_DOMAIN=f"dribble-dagger-test-{os.getpid()}",
     )
-    command = [str(REPOSITORY / "scripts" / "dagger"), "--base", str(base), "--iterations", "1", "--episodes", "2", "--tiny"]
+    command = [str(REPOSITORY / "scripts" / "dagger"), "--base", str(base), "--iterations", "1", "--episodes", "2,5", "--tiny"]
+    # A named run; the first iteration takes the first of the per-iteration counts.
+    command += ["--name", "tiny-run"]
     result = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-4000:]
 
     # The round: two policy-driven episodes on fresh seeds, labelled by the expert.
-    round_dir = data / "dagger" / "base-warm" / "round-1"
+    round_dir = data / "dagger" / "tiny-run" / "round-1"
     index = json.loads((round_dir / "dataset.json").read_text())
     assert [e["seed"] for e in index["episodes"]] == [1000, 1001]
     assert index["driver"]["label_with"] == "expert"
@@ -51,20 +60,20 @@ def test_one_tiny_dagger_iteration_runs_the_whole_loop(tmp_path, rng):
         assert rows == index["episodes"][0]["rows"] > 0
 
     # The retrained model names every dataset it learned from and was scored and evaluated.
-    model = tmp_path / "dagger" / "base-warm" / "iter-1"
+    model = tmp_path / "dagger" / "tiny-run" / "iter-1"
     manifest = (model / "policy.toml").read_text()
     assert 'name = "round-1"' in manifest and index["content_hash"] in manifest
     assert "started from the kept weights of" in manifest
     assert "stalls in them cut after 3 s" in manifest
     # The only iteration is the chosen one: it alone is evaluated on the test seeds.
-    assert (tmp_path / "dagger" / "base-warm" / "CHOSEN").read_text().strip() == str(model)
+    assert (tmp_path / "dagger" / "tiny-run" / "CHOSEN").read_text().strip() == str(model)
     assert [e["seed"] for e in json.loads((model / "select.json").read_text())["episodes"]] == [20000]
     assert [e["seed"] for e in json.loads((model / "fresh.json").read_text())["episodes"]] == [30000]
     for name in ("score_test.json", "eval.json", "fresh.json", "select.json", "eval_trajectories.png"):
         assert (model / name).is_file(), name
-    report = (tmp_path / "dagger" / "base-warm" / "dagger.md").read_text().splitlines()
+    report = (tmp_path / "dagger" / "tiny-run" / "dagger.md").read_text().splitlines()
     assert report[2].startswith("| 0 | behaviour cloning") and report[3].startswith("| 1 | iteration 0's policy (0.5000)")
-    assert (tmp_path / "dagger" / "base-warm" / "dagger.png").is_file()
+    assert (tmp_path / "dagger" / "tiny-run" / "dagger.png").is_file()
 
     # Run again: everything is kept.
     again = subprocess.run(command, env=environment, capture_output=True, text=True, timeout=600)
