@@ -636,9 +636,10 @@ mod tests {
             assert_eq!(count(|s| matches!(s, Step::Conv { .. })), 0, "{isa}");
             // Every max-pool folded into the convolution before it.
             assert_eq!(count(|s| matches!(s, Step::MaxPool { .. })), 0, "{isa}");
-            // The conv outputs' grids go into the convolutions; the inputs, the pooled maps
-            // and the features have pairs of their own.
-            assert_eq!(count(|s| matches!(s, Step::SnapToGrid { .. })), 5, "{isa}");
+            // The conv outputs' grids go into the convolutions; the pairs of the inputs,
+            // the pooled maps and the features into the codings of the int8 steps that read
+            // them (`fold_snaps`).
+            assert_eq!(count(|s| matches!(s, Step::SnapToGrid { .. })), 0, "{isa}");
             assert_eq!(network.int8_steps(), 5);
             assert_eq!(network.tolerance(), oracle::INT8_TOLERANCE);
             match oracle::compare(&proto, &CNN_INPUTS, isa, 29, 3) {
@@ -721,6 +722,68 @@ mod tests {
                     commands[0].len(),
                     3 + 7 * 10 * 32 + 4 * 5 * 16 + 30 * 40 * 16 + 15 * 20 * 8
                 );
+                assert_eq!(commands[0], commands[1], "{isa}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_int8_step_coding_a_pairs_input_itself_gives_the_snapped_maps_numbers_bit_for_bit() {
+        // The same QDQ file twice: as it is (each activation pair that only an int8 step
+        // reads is folded into that step's coding) and with the pairs' outputs made graph
+        // outputs (a second reader: each stays a SnapToGrid step of its own). The commands
+        // must be the same bits.
+        let (path, folded) = fixture("cnn-int8");
+        let mut separate = folded.clone();
+        let graph = separate.graph.as_mut().expect("graph");
+        let quantized: Vec<String> = graph
+            .node
+            .iter()
+            .filter(|n| n.op_type == "QuantizeLinear")
+            .map(|n| n.output[0].clone())
+            .collect();
+        let pairs: Vec<String> = graph
+            .node
+            .iter()
+            .filter(|n| n.op_type == "DequantizeLinear" && quantized.contains(&n.input[0]))
+            .map(|n| n.output[0].clone())
+            .collect();
+        for name in &pairs {
+            graph.output.push(onnx_builder::value_info(name, None));
+        }
+        let mut rng = 0x9e37_79b9_u32;
+        for isa in Isa::available() {
+            let mut networks = [&folded, &separate].map(|proto| {
+                CompiledNetwork::lower(&path, proto, &CNN_INPUTS, isa)
+                    .unwrap_or_else(|why| panic!("{isa}: {}", why.0))
+            });
+            let snaps = networks.each_ref().map(|n| {
+                n.steps
+                    .iter()
+                    .filter(|s| matches!(s, Step::SnapToGrid { .. }))
+                    .count()
+            });
+            assert_eq!(snaps, [0, 5], "{isa}");
+            for _ in 0..3 {
+                let thumbnails: Vec<f32> = (0..120 * 160 + 60 * 80)
+                    .map(|_| {
+                        rng ^= rng << 13;
+                        rng ^= rng >> 17;
+                        rng ^= rng << 5;
+                        f32::from((rng >> 24) as u8) / 255.0
+                    })
+                    .collect();
+                let commands = networks.each_mut().map(|network| {
+                    let (top, bottom) = thumbnails.split_at(120 * 160);
+                    network.input_mut("top").expect("top").copy_from_slice(top);
+                    network
+                        .input_mut("bottom")
+                        .expect("bottom")
+                        .copy_from_slice(bottom);
+                    network.run();
+                    let command = network.output("command").expect("command");
+                    command.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                });
                 assert_eq!(commands[0], commands[1], "{isa}");
             }
         }

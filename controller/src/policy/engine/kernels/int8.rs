@@ -204,45 +204,115 @@ macro_rules! sse_quad {
     }};
 }
 
-/// [`sse_quad`] for quad `$lane` of the group in `$xs`, in assembly: per weight vector one
-/// `pshufd` (the spread quad, also the copy `pmaddubsw` overwrites), `pmaddubsw` with the
-/// aligned weights as its memory operand, `pmaddwd`, `paddd`: sixteen instructions in seven
-/// vector registers. Why assembly: on the V5's eight registers the compiler interleaves the
-/// four quads of a group (the Atom's scheduling model) and spills sums and spread quads to
-/// the stack, about 40 % more instructions a group (callgrind); an `asm!` block is not
-/// reordered across. The same instructions as the intrinsics, so the same sums.
+/// One row of `$groups` groups into the four sums of a 16-wide panel, the whole loop in
+/// assembly (legacy SSE encoding, for the Atoms): per group one unaligned load and a test
+/// that skips sixteen zero inputs, then per quad and weight vector `pshufd` (the spread
+/// quad, also the copy `pmaddubsw` overwrites), `pmaddubsw` with the aligned weights as its
+/// memory operand, `pmaddwd` with ones, `paddd`: 64 instructions a group in seven vector
+/// registers. Why assembly: on the V5's eight registers the compiler interleaved a group's
+/// quads and spilled sums to the stack (about 40 % more instructions a group), and around
+/// per-quad `asm!` blocks it set its loop up again after every group it computed (about a
+/// dozen instructions a group); here the loop costs five. The same instructions as
+/// [`sse_quad`], so the same sums.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-macro_rules! sse_quad_asm {
-    ($xs:expr, $lane:literal, $w:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {
-        // Inside the caller's `unsafe` block: reads the 64 bytes at `$w` (aligned, inside
-        // the panel), writes only the named registers; no stack, flags untouched.
-        core::arch::asm!(
-            concat!("pshufd {t}, {x}, ", $lane),
-            "pmaddubsw {t}, xmmword ptr [{w}]",
+macro_rules! row_asm {
+    ($bytes:expr, $vectors:expr, $groups:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {
+        // Inside the caller's `unsafe` block, whose contract gives: `$groups * 16` bytes at
+        // `$bytes`, `$groups * 16` vectors at `$vectors` (aligned). Reads only those,
+        // writes only the named registers and the flags; no stack. Nothing runs for 0
+        // groups.
+        if $groups > 0 {
+            core::arch::asm!(
+            "2:",
+            "movdqu {xs}, xmmword ptr [{x}]",
+            "pxor {t}, {t}",
+            "pcmpeqb {t}, {xs}",
+            "pmovmskb {mask:e}, {t}",
+            "cmp {mask:e}, 0xffff",
+            "je 3f",
+            "pshufd {t}, {xs}, 0x00",
+            "pmaddubsw {t}, xmmword ptr [{w} + 0]",
             "pmaddwd {t}, {ones}",
             "paddd {s0}, {t}",
-            concat!("pshufd {t}, {x}, ", $lane),
+            "pshufd {t}, {xs}, 0x00",
             "pmaddubsw {t}, xmmword ptr [{w} + 16]",
             "pmaddwd {t}, {ones}",
             "paddd {s1}, {t}",
-            concat!("pshufd {t}, {x}, ", $lane),
+            "pshufd {t}, {xs}, 0x00",
             "pmaddubsw {t}, xmmword ptr [{w} + 32]",
             "pmaddwd {t}, {ones}",
             "paddd {s2}, {t}",
-            concat!("pshufd {t}, {x}, ", $lane),
+            "pshufd {t}, {xs}, 0x00",
             "pmaddubsw {t}, xmmword ptr [{w} + 48]",
             "pmaddwd {t}, {ones}",
             "paddd {s3}, {t}",
-            x = in(xmm_reg) $xs,
-            w = in(reg) $w,
-            ones = in(xmm_reg) $ones,
+            "pshufd {t}, {xs}, 0x55",
+            "pmaddubsw {t}, xmmword ptr [{w} + 64]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            "pshufd {t}, {xs}, 0x55",
+            "pmaddubsw {t}, xmmword ptr [{w} + 80]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            "pshufd {t}, {xs}, 0x55",
+            "pmaddubsw {t}, xmmword ptr [{w} + 96]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s2}, {t}",
+            "pshufd {t}, {xs}, 0x55",
+            "pmaddubsw {t}, xmmword ptr [{w} + 112]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s3}, {t}",
+            "pshufd {t}, {xs}, 0xaa",
+            "pmaddubsw {t}, xmmword ptr [{w} + 128]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            "pshufd {t}, {xs}, 0xaa",
+            "pmaddubsw {t}, xmmword ptr [{w} + 144]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            "pshufd {t}, {xs}, 0xaa",
+            "pmaddubsw {t}, xmmword ptr [{w} + 160]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s2}, {t}",
+            "pshufd {t}, {xs}, 0xaa",
+            "pmaddubsw {t}, xmmword ptr [{w} + 176]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s3}, {t}",
+            "pshufd {t}, {xs}, 0xff",
+            "pmaddubsw {t}, xmmword ptr [{w} + 192]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            "pshufd {t}, {xs}, 0xff",
+            "pmaddubsw {t}, xmmword ptr [{w} + 208]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            "pshufd {t}, {xs}, 0xff",
+            "pmaddubsw {t}, xmmword ptr [{w} + 224]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s2}, {t}",
+            "pshufd {t}, {xs}, 0xff",
+            "pmaddubsw {t}, xmmword ptr [{w} + 240]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s3}, {t}",
+            "3:",
+            "add {x}, 16",
+            "add {w}, 256",
+            "dec {n}",
+            "jnz 2b",
+            x = inout(reg) $bytes => _,
+            w = inout(reg) $vectors => _,
+            n = inout(reg) $groups => _,
+            mask = out(reg) _,
+            xs = out(xmm_reg) _,
             t = out(xmm_reg) _,
+            ones = in(xmm_reg) $ones,
             s0 = inout(xmm_reg) $s0,
             s1 = inout(xmm_reg) $s1,
             s2 = inout(xmm_reg) $s2,
             s3 = inout(xmm_reg) $s3,
-            options(pure, readonly, nostack, preserves_flags),
-        )
+            options(readonly, nostack),
+            )
+        }
     };
 }
 
@@ -270,7 +340,7 @@ fn max_epi32_sse2(a: __m128i, b: __m128i) -> __m128i {
 /// layers of at most 16 outputs, where a 32-wide panel would be half zeros (the same code in
 /// VEX encoding).
 macro_rules! sse_panels_of_16 {
-    ($(#[$doc:meta])* $name:ident, $feature:literal, $group:ident) => {
+    ($(#[$doc:meta])* $name:ident, $feature:literal, $row:ident) => {
         $(#[$doc])*
         ///
         /// # Safety
@@ -282,9 +352,13 @@ macro_rules! sse_panels_of_16 {
             let rows = weights.rows_in(x, acc);
             let row = weights.padded_inputs();
             let ones = _mm_set1_epi16(1);
+            let groups = row / GROUP;
             for (panel, out) in acc.chunks_mut(16).enumerate() {
                 let w = weights.panel(panel);
                 assert!(w.as_ptr().cast::<WeightBlock>().is_aligned());
+                // A group's weights: four quads of 64 bytes, 16 vectors.
+                assert_eq!(w.len(), groups * GROUP * 16);
+                let panel_vectors = w.as_ptr().cast::<__m128i>();
                 let mut largest = [_mm_set1_epi32(i32::MIN); 4];
                 for inputs in x.chunks_exact(row).take(rows) {
                     let (mut s0, mut s1, mut s2, mut s3) = (
@@ -293,21 +367,10 @@ macro_rules! sse_panels_of_16 {
                         _mm_setzero_si128(),
                         _mm_setzero_si128(),
                     );
-                    for (group, group_weights) in
-                        inputs.chunks_exact(GROUP).zip(w.chunks_exact(GROUP * 16))
-                    {
-                        // SAFETY: `group` is 16 bytes (an exact chunk), read unaligned;
-                        // `group_weights` is 256 bytes, four quads' 64, each on a 64-byte
-                        // boundary (the panel is aligned and a quad's weights are 64
-                        // bytes), read aligned 16 at a time.
-                        unsafe {
-                            let xs = _mm_loadu_si128(group.as_ptr().cast::<__m128i>());
-                            if _mm_movemask_epi8(_mm_cmpeq_epi8(xs, _mm_setzero_si128())) == 0xffff {
-                                continue;
-                            }
-                            let base = group_weights.as_ptr().cast::<__m128i>();
-                            $group!(xs, base, ones, [s0, s1, s2, s3]);
-                        }
+                    // SAFETY: `inputs` is a whole row of `groups * GROUP` bytes and the panel
+                    // holds `groups` groups' 16 aligned vectors (asserted above).
+                    unsafe {
+                        $row!(inputs.as_ptr(), panel_vectors, groups, ones, [s0, s1, s2, s3]);
                     }
                     for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
                         *most = max_epi32_sse2(*most, sums);
@@ -325,18 +388,6 @@ macro_rules! sse_panels_of_16 {
             }
         }
     };
-}
-
-/// One group's four quads, each quad in assembly ([`sse_quad_asm`]): legacy SSE encoding.
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-macro_rules! group_asm {
-    ($xs:expr, $base:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
-        let (xs, base) = ($xs, $base);
-        sse_quad_asm!(xs, "0x00", base, $ones, [$s0, $s1, $s2, $s3]);
-        sse_quad_asm!(xs, "0x55", base.add(4), $ones, [$s0, $s1, $s2, $s3]);
-        sse_quad_asm!(xs, "0xaa", base.add(8), $ones, [$s0, $s1, $s2, $s3]);
-        sse_quad_asm!(xs, "0xff", base.add(12), $ones, [$s0, $s1, $s2, $s3]);
-    }};
 }
 
 /// One group's four quads with intrinsics ([`sse_quad`]), which the compiler encodes as VEX
@@ -372,6 +423,22 @@ macro_rules! group_intrinsics {
     }};
 }
 
+/// One row into a 16-wide panel's sums with intrinsics ([`group_intrinsics`] per group that
+/// is not all zeros): the AVX2 machines' 16-wide layers.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+macro_rules! row_intrinsics {
+    ($bytes:expr, $vectors:expr, $groups:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
+        let (bytes, vectors) = ($bytes, $vectors);
+        for g in 0..$groups {
+            let xs = _mm_loadu_si128(bytes.add(g * GROUP).cast::<__m128i>());
+            if _mm_movemask_epi8(_mm_cmpeq_epi8(xs, _mm_setzero_si128())) == 0xffff {
+                continue;
+            }
+            group_intrinsics!(xs, vectors.add(g * 16), $ones, [$s0, $s1, $s2, $s3]);
+        }
+    }};
+}
+
 // In assembly on both robots' builds. Callgrind, int8 CNN forward: V5 6.46 M -> 5.57 M,
 // V6 4.86 M -> 4.64 M; the host's generic x86-64 build counts a little more with it (5.01 M
 // -> 5.14 M) and is not what the robot runs.
@@ -379,14 +446,14 @@ sse_panels_of_16!(
     /// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`), panels of 16 outputs.
     largest_ssse3,
     "ssse3",
-    group_asm
+    row_asm
 );
 sse_panels_of_16!(
     /// [`largest_ssse3`]'s code on an AVX2 machine (VEX-encoded), for layers of at most 16
     /// outputs.
     largest_avx2_16,
     "avx2",
-    group_intrinsics
+    row_intrinsics
 );
 
 /// [`largest_portable`] with AVX2 (`vpmaddubsw`, `vpmaddwd`): panels of 32 outputs in four

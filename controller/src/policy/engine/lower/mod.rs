@@ -245,6 +245,7 @@ pub(crate) fn lower(
         };
         outputs.push((output.name.clone(), buffer, shape.iter().product()));
     }
+    quantized::fold_snaps(&mut lowerer.steps, &outputs);
     Ok(Lowering {
         steps: lowerer.steps,
         buffers: lowerer.buffers,

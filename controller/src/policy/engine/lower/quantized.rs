@@ -455,3 +455,46 @@ impl Lowerer {
         }))
     }
 }
+
+/// Takes out each [`Step::SnapToGrid`] whose only reader is an int8 step coding its input on
+/// that same grid: the int8 step codes the unsnapped numbers instead. The codes are the
+/// same: the snap of `x` is the grid value of `x`'s code, and a grid value's code is that
+/// code again (checked for all 256 codes before the step goes; a grid where rounding broke
+/// it keeps its snap). One pass over the map fewer per layer, no float map written and read
+/// back (the camera inputs, the pooled maps, the features: five of the int8 CNN's passes).
+pub(super) fn fold_snaps(steps: &mut Vec<Step>, outputs: &[(String, BufferId, usize)]) {
+    let mut index = 0;
+    while index < steps.len() {
+        let Step::SnapToGrid { from, to, grid, .. } = steps[index] else {
+            index += 1;
+            continue;
+        };
+        let round_trip = (0..=255u8).all(|code| {
+            let value = f32::from(i16::from(code) - i16::from(grid.zero())) * grid.scale();
+            grid.code(value) == code
+        });
+        let is_output = outputs.iter().any(|&(_, buffer, _)| buffer == to);
+        let readers: Vec<usize> = (index + 1..steps.len())
+            .filter(|&j| steps[j].buffers().0.contains(&to))
+            .collect();
+        let folded = match (round_trip && !is_output, readers.as_slice()) {
+            (true, &[reader]) => match &mut steps[reader] {
+                Step::QuantizedConv(conv) if conv.from == to && conv.input == grid => {
+                    conv.from = from;
+                    true
+                }
+                Step::QuantizedDense(dense) if dense.from == to && dense.input == grid => {
+                    dense.from = from;
+                    true
+                }
+                _ => false,
+            },
+            _ => false,
+        };
+        if folded {
+            steps.remove(index);
+        } else {
+            index += 1;
+        }
+    }
+}
