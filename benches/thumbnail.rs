@@ -2,7 +2,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use dribble_controller::test_pattern::TestPattern;
-use dribble_controller::thumbnail::downscale;
+use dribble_controller::thumbnail::{downscale, downscale_portable};
 use dribble_controller::{BottomFrame, BottomThumbnail, Timestamp, TopFrame, TopThumbnail};
 use std::hint::black_box;
 
@@ -19,6 +19,10 @@ fn thumbnails(c: &mut Criterion) {
     group.throughput(Throughput::Bytes(TopFrame::PIXEL_BYTES as u64));
     group.bench_function("top 640x480 to 160x120", |b| {
         b.iter(|| downscale(black_box(&*top), black_box(&mut *top_thumbnail)))
+    });
+    // The plain integer code that runs where SSE2 does not (the same bytes).
+    group.bench_function("top 640x480 to 160x120, portable", |b| {
+        b.iter(|| downscale_portable(black_box(&*top), black_box(&mut *top_thumbnail)))
     });
     group.throughput(Throughput::Bytes(BottomFrame::PIXEL_BYTES as u64));
     group.bench_function("bottom 320x240 to 80x60", |b| {
