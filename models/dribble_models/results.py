@@ -19,9 +19,11 @@ the committed files give.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import statistics
+import tomllib
 from collections import Counter
 import sys
 from pathlib import Path
@@ -151,9 +153,12 @@ def failure_analysis(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-#: The rows of the committed table, in order: the paper's setup, then what goes beyond it.
+#: The rows of the committed table, in order: the paper's setup, then what goes beyond it;
+#: last the shipped model's int8 twin (the robot package's policy; its selection run is in
+#: models/selection, so it is no candidate for the shipped row).
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
-        "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable", "dagger-observable")
+        "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable", "dagger-observable",
+        "dagger-observable-int8")
 
 
 def selection_runs(directory: Path) -> str:
@@ -207,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--readme", type=Path, help="rewrite this README's generated blocks with the tables")
     parser.add_argument("--out", type=Path, help="also write the tables (Markdown) here")
     parser.add_argument("--choose", type=Path, help="write the chosen model's directory name here: most goals on the selection episodes (select.json), then lowest validation error")
+    parser.add_argument("--robot", type=Path, help="with --choose: write the name of the policy the robot package carries here (robot_policy: the chosen model's int8 twin where it keeps its quality, else the chosen model)")
     args = parser.parse_args(argv)
     rows = []
     specs = list(args.row)
@@ -264,6 +270,10 @@ def main(argv: list[str] | None = None) -> int:
         chosen = choose(rows)
         args.choose.write_text(Path(chosen["directory"]).name + "\n")
         print(f"shipped: {chosen['directory']} ({chosen['selection']})")
+        if args.robot:
+            name, reason = robot_policy(Path(chosen["directory"]))
+            args.robot.write_text(name + "\n")
+            print(f"robot package: {name} ({reason})")
     return 0
 
 
@@ -283,6 +293,47 @@ def choose(rows: list[dict]) -> dict:
     for row in rows:
         row["selection"] = candidates[Path(row["directory"]).name].reason(seeds)
     return next(row for row in rows if Path(row["directory"]).name == chosen.name)
+
+
+# The most the int8 twin's test error may exceed the float model's (issue 29).
+INT8_ERROR_MARGIN = 0.01
+
+
+def robot_policy(shipped: Path) -> tuple[str, str]:
+    """The policy the robot package carries (cross/package) and why: the shipped model's
+    int8 twin (`<shipped>-int8`, made by dribble_models.quantize from exactly the shipped
+    network) where it keeps the float model's quality, else the shipped model itself.
+
+    Keeping quality is the issue's gate, not a choice among candidates: the twin's own test
+    error (`dribble score`, recorded rows) at most 0.01 above the float model's, and its goals
+    on the float model's selection seeds (its run in models/selection/<twin>.json) not below
+    the lower end of the float model's Wilson 95 % interval there. Closed loops on test seeds
+    take no part; the twin's are reported beside it."""
+    twin = shipped.parent / f"{shipped.name}-int8"
+    if not (twin / "policy.toml").is_file():
+        return shipped.name, f"no int8 twin {twin}"
+    with open(twin / "policy.toml", "rb") as handle:
+        manifest = tomllib.load(handle)
+    with open(shipped / "policy.toml", "rb") as handle:
+        original = tomllib.load(handle)
+    networks = [hashlib.sha256((shipped / n).read_bytes()).hexdigest() for n in original["networks"]]
+    if manifest.get("precision") != "int8" or manifest.get("quantization", {}).get("float_networks_sha256") != networks:
+        return shipped.name, f"{twin.name} was not quantized from the shipped networks"
+    errors = (manifest["training"].get("test_error"), original["training"].get("test_error"))
+    if None in errors:
+        return shipped.name, "a test error is missing"
+    twin_run = read_selection(shipped.parent.parent / "selection" / f"{twin.name}.json")
+    float_run = read_selection(shipped / "select.json")
+    if twin_run is None or float_run is None or twin_run.seeds != float_run.seeds:
+        return shipped.name, f"{twin.name} has no selection run on the shipped model's seeds"
+    low, _ = wilson(float_run.goals, float_run.episodes)
+    measured = (
+        f"test error {errors[0]:.4f} against {errors[1]:.4f}; {twin_run.goals} / {twin_run.episodes} "
+        f"selection goals against {float_run.goals} / {float_run.episodes} (interval from {low:.2f})"
+    )
+    if errors[0] > errors[1] + INT8_ERROR_MARGIN or twin_run.goals < low * twin_run.episodes:
+        return shipped.name, f"{twin.name} does not keep the quality: {measured}"
+    return twin.name, f"the int8 twin keeps the quality: {measured}"
 
 
 if __name__ == "__main__":

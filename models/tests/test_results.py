@@ -1,6 +1,9 @@
 """The README's result tables are the ones the committed run files give: regenerated here
 from models/policy exactly as scripts/results does, and compared block by block."""
 
+import hashlib
+import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -27,3 +30,55 @@ def test_a_block_is_replaced_whole_and_a_missing_one_is_named():
     )
     with pytest.raises(results.ReadmeError, match="failures"):
         results.with_tables(text, {"failures": "| x |"})
+
+
+def _policy(directory: Path, test_error: float, networks_sha256: list[str] | None = None) -> None:
+    directory.mkdir(parents=True)
+    (directory / "policy.onnx").write_bytes(directory.name.encode())
+    lines = ['networks = ["policy.onnx"]']
+    if networks_sha256 is not None:
+        lines.append('precision = "int8"')
+    lines += ["[training]", f"test_error = {test_error}"]
+    if networks_sha256 is not None:
+        lines += ["[quantization]", f"float_networks_sha256 = {networks_sha256!r}".replace("'", '"')]
+    (directory / "policy.toml").write_text("\n".join(lines) + "\n")
+
+
+def _selection(path: Path, goals: int, episodes: int = 50, first: int = 20000) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    runs = [{"seed": first + i, "outcome": "goal" if i < goals else "time limit"} for i in range(episodes)]
+    path.write_text(json.dumps({"engine": "compiled (avx2+fma, winograd)", "episodes": runs}))
+
+
+def test_the_robot_carries_the_int8_twin_only_where_it_keeps_the_float_models_quality(tmp_path):
+    models = tmp_path / "policy"
+    shipped = models / "best"
+    _policy(shipped, 0.100)
+    _selection(shipped / "select.json", 44)
+    assert results.robot_policy(shipped) == ("best", f"no int8 twin {models / 'best-int8'}")
+    digest = hashlib.sha256(b"best").hexdigest()
+    twin = models / "best-int8"
+    _policy(twin, 0.109, [digest])
+    name, why = results.robot_policy(shipped)
+    assert name == "best" and "no selection run" in why
+    # 44 / 50 has a Wilson interval from 0.762 (38.1 goals of 50): 39 passes, 38 does not.
+    for goals, chosen in ((39, "best-int8"), (38, "best")):
+        _selection(tmp_path / "selection" / "best-int8.json", goals)
+        assert results.robot_policy(shipped)[0] == chosen, goals
+    # On other seeds than the float model's run, nothing is compared.
+    _selection(tmp_path / "selection" / "best-int8.json", 50, first=20050)
+    assert results.robot_policy(shipped)[0] == "best"
+    _selection(tmp_path / "selection" / "best-int8.json", 44)
+    # A test error more than 0.01 above the float model's fails; a twin of other networks too.
+    (twin / "policy.toml").write_text((twin / "policy.toml").read_text().replace("0.109", "0.111"))
+    assert results.robot_policy(shipped)[0] == "best"
+    shutil.rmtree(twin)
+    _policy(twin, 0.100, [hashlib.sha256(b"other").hexdigest()])
+    name, why = results.robot_policy(shipped)
+    assert name == "best" and "not quantized from the shipped networks" in why
+
+
+def test_the_committed_robot_policy_is_the_rules():
+    models = REPOSITORY / "models" / "policy"
+    shipped = models / (models / "SHIPPED").read_text().strip()
+    assert (models / "ROBOT").read_text().strip() == results.robot_policy(shipped)[0]
