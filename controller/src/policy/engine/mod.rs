@@ -680,44 +680,14 @@ mod tests {
         }
         let mut rng = 0x2545_f491_u32;
         for isa in Isa::available() {
-            let mut networks = [&folded, &separate].map(|proto| {
-                CompiledNetwork::lower(&path, proto, &CNN_INPUTS, isa)
-                    .unwrap_or_else(|why| panic!("{isa}: {}", why.0))
-            });
-            let pools = networks.each_ref().map(|n| {
-                n.steps
-                    .iter()
-                    .filter(|s| matches!(s, Step::MaxPool { .. }))
-                    .count()
-            });
+            let mut networks = lowered_pair(&path, [&folded, &separate], isa);
+            let pools = count_steps(&networks, |s| matches!(s, Step::MaxPool { .. }));
             assert_eq!(pools, [0, 4], "{isa}");
             for _ in 0..3 {
-                let mut commands = Vec::new();
-                let thumbnails: Vec<f32> = (0..120 * 160 + 60 * 80)
-                    .map(|_| {
-                        rng ^= rng << 13;
-                        rng ^= rng >> 17;
-                        rng ^= rng << 5;
-                        f32::from((rng >> 24) as u8) / 255.0
-                    })
-                    .collect();
-                for network in &mut networks {
-                    let (top, bottom) = thumbnails.split_at(120 * 160);
-                    network.input_mut("top").expect("top").copy_from_slice(top);
-                    network
-                        .input_mut("bottom")
-                        .expect("bottom")
-                        .copy_from_slice(bottom);
-                    network.run();
-                    let bits = outputs.iter().flat_map(|name| {
-                        network
-                            .output(name)
-                            .expect("output")
-                            .iter()
-                            .map(|v| v.to_bits())
-                    });
-                    commands.push(bits.collect::<Vec<_>>());
-                }
+                let thumbnails = random_thumbnails(&mut rng);
+                let commands = networks
+                    .each_mut()
+                    .map(|n| output_bits(n, &thumbnails, &outputs));
                 assert_eq!(
                     commands[0].len(),
                     3 + 7 * 10 * 32 + 4 * 5 * 16 + 30 * 40 * 16 + 15 * 20 * 8
@@ -753,40 +723,69 @@ mod tests {
         }
         let mut rng = 0x9e37_79b9_u32;
         for isa in Isa::available() {
-            let mut networks = [&folded, &separate].map(|proto| {
-                CompiledNetwork::lower(&path, proto, &CNN_INPUTS, isa)
-                    .unwrap_or_else(|why| panic!("{isa}: {}", why.0))
-            });
-            let snaps = networks.each_ref().map(|n| {
-                n.steps
-                    .iter()
-                    .filter(|s| matches!(s, Step::SnapToGrid { .. }))
-                    .count()
-            });
+            let mut networks = lowered_pair(&path, [&folded, &separate], isa);
+            let snaps = count_steps(&networks, |s| matches!(s, Step::SnapToGrid { .. }));
             assert_eq!(snaps, [0, 5], "{isa}");
             for _ in 0..3 {
-                let thumbnails: Vec<f32> = (0..120 * 160 + 60 * 80)
-                    .map(|_| {
-                        rng ^= rng << 13;
-                        rng ^= rng >> 17;
-                        rng ^= rng << 5;
-                        f32::from((rng >> 24) as u8) / 255.0
-                    })
-                    .collect();
-                let commands = networks.each_mut().map(|network| {
-                    let (top, bottom) = thumbnails.split_at(120 * 160);
-                    network.input_mut("top").expect("top").copy_from_slice(top);
-                    network
-                        .input_mut("bottom")
-                        .expect("bottom")
-                        .copy_from_slice(bottom);
-                    network.run();
-                    let command = network.output("command").expect("command");
-                    command.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-                });
+                let thumbnails = random_thumbnails(&mut rng);
+                let commands = networks
+                    .each_mut()
+                    .map(|n| output_bits(n, &thumbnails, &["command"]));
                 assert_eq!(commands[0], commands[1], "{isa}");
             }
         }
+    }
+
+    /// Two variants of one file, lowered for `isa`.
+    fn lowered_pair(path: &Path, protos: [&pb::ModelProto; 2], isa: Isa) -> [CompiledNetwork; 2] {
+        protos.map(|proto| {
+            CompiledNetwork::lower(path, proto, &CNN_INPUTS, isa)
+                .unwrap_or_else(|why| panic!("{isa}: {}", why.0))
+        })
+    }
+
+    fn count_steps(networks: &[CompiledNetwork; 2], kind: fn(&Step) -> bool) -> [usize; 2] {
+        networks
+            .each_ref()
+            .map(|n| n.steps.iter().filter(|s| kind(s)).count())
+    }
+
+    /// A top and a bottom thumbnail of random bytes (xorshift from `rng`), as the network
+    /// sees them (`u8 / 255`), one after the other.
+    fn random_thumbnails(rng: &mut u32) -> Vec<f32> {
+        (0..120 * 160 + 60 * 80)
+            .map(|_| {
+                *rng ^= *rng << 13;
+                *rng ^= *rng >> 17;
+                *rng ^= *rng << 5;
+                f32::from((*rng >> 24) as u8) / 255.0
+            })
+            .collect()
+    }
+
+    /// Runs `network` on `thumbnails` and returns the bits of the named outputs, in order.
+    fn output_bits(
+        network: &mut CompiledNetwork,
+        thumbnails: &[f32],
+        names: &[impl AsRef<str>],
+    ) -> Vec<u32> {
+        let (top, bottom) = thumbnails.split_at(120 * 160);
+        network.input_mut("top").expect("top").copy_from_slice(top);
+        network
+            .input_mut("bottom")
+            .expect("bottom")
+            .copy_from_slice(bottom);
+        network.run();
+        names
+            .iter()
+            .flat_map(|name| {
+                network
+                    .output(name.as_ref())
+                    .expect("output")
+                    .iter()
+                    .map(|v| v.to_bits())
+            })
+            .collect()
     }
 
     #[test]
