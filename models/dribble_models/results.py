@@ -23,7 +23,6 @@ import hashlib
 import json
 import math
 import statistics
-import tomllib
 from collections import Counter
 import sys
 from pathlib import Path
@@ -312,10 +311,7 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     twin = shipped.parent / f"{shipped.name}-int8"
     if not (twin / "policy.toml").is_file():
         return shipped.name, f"no int8 twin {twin}"
-    with open(twin / "policy.toml", "rb") as handle:
-        manifest = tomllib.load(handle)
-    with open(shipped / "policy.toml", "rb") as handle:
-        original = tomllib.load(handle)
+    manifest, original = load(twin / "policy.toml"), load(shipped / "policy.toml")
     networks = [hashlib.sha256((shipped / n).read_bytes()).hexdigest() for n in original["networks"]]
     if manifest.get("precision") != "int8" or manifest.get("quantization", {}).get("float_networks_sha256") != networks:
         return shipped.name, f"{twin.name} was not quantized from the shipped networks"
