@@ -211,6 +211,11 @@ impl Grid {
         self.zero
     }
 
+    /// `1 / scale`, as the coding multiplies by it.
+    pub(crate) fn inverse(self) -> f32 {
+        self.inverse
+    }
+
     /// `x / scale` rounded half to even and clamped so that adding the zero point gives
     /// 0..=255: the code minus the zero point, as an integer-valued float. The rounding
     /// adds and takes away 1.5 x 2^23, which rounds to an integer in the current

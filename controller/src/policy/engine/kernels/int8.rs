@@ -30,6 +30,7 @@
 // The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
 #![allow(unsafe_code)]
 
+use super::super::layout::Grid;
 #[cfg(target_arch = "x86")]
 use std::arch::x86::*;
 #[cfg(target_arch = "x86_64")]
@@ -67,6 +68,9 @@ pub(crate) struct QuadPanels {
     inputs: usize,
     outputs: usize,
     width: usize,
+    /// [`Self::pairs`]' layout: one 32-wide panel whose 256-bit vectors hold four outputs'
+    /// weights twice, for two rows at once.
+    pairs: bool,
 }
 
 impl QuadPanels {
@@ -105,7 +109,33 @@ impl QuadPanels {
             inputs,
             outputs,
             width,
+            pairs: false,
         })
+    }
+
+    /// At most 16 outputs laid out for [`largest_avx2_pairs`]: one 32-wide panel in which
+    /// column `8k + j` holds output `4k + j % 4`, so each 256-bit vector of a quad holds four
+    /// outputs' weights in both 128-bit halves, one half per row of a pair.
+    pub(crate) fn pairs(
+        rows: &[i8],
+        outputs: usize,
+        inputs: usize,
+    ) -> Result<Self, WeightOutOfRange> {
+        debug_assert!(outputs <= 16 && rows.len() == outputs * inputs);
+        let mut doubled = vec![0i8; 32 * inputs];
+        for (column, target) in doubled.chunks_exact_mut(inputs.max(1)).enumerate() {
+            let output = 4 * (column / 8) + column % 4;
+            if output < outputs {
+                target.copy_from_slice(&rows[output * inputs..(output + 1) * inputs]);
+            }
+        }
+        let mut panels = Self::new(&doubled, 32, inputs, 32).map_err(|error| WeightOutOfRange {
+            output: 4 * (error.output / 8) + error.output % 4,
+            ..error
+        })?;
+        panels.outputs = outputs;
+        panels.pairs = true;
+        Ok(panels)
     }
 
     pub(crate) fn inputs(&self) -> usize {
@@ -133,75 +163,62 @@ impl QuadPanels {
         &self.values()[panel * size..(panel + 1) * size]
     }
 
-    /// How many rows of [`Self::padded_inputs`] bytes `x` holds; panics where `x` is not
-    /// whole rows or `acc` not one sum per output (checked once per call, so the loops'
-    /// reads are in bounds).
-    fn rows_in(&self, x: &[u8], acc: &[i32]) -> usize {
+    /// How many cells `acc` holds (`outputs` sums each) and how many rows of
+    /// [`Self::padded_inputs`] bytes `x` holds per cell; panics where `acc` is not whole
+    /// cells or `x` not the same whole number of rows for each (checked once per call, so
+    /// the loops' reads are in bounds).
+    fn cells_in(&self, x: &[u8], acc: &[i32]) -> (usize, usize) {
         let row = self.padded_inputs();
+        let cells = acc.len() / self.outputs.max(1);
         assert!(
-            row > 0 && x.len().is_multiple_of(row) && !x.is_empty() && acc.len() == self.outputs,
-            "int8 product of {} bytes against rows of {row}",
-            x.len()
+            row > 0
+                && cells > 0
+                && acc.len() == cells * self.outputs
+                && x.len().is_multiple_of(cells * row)
+                && x.len() >= cells * row,
+            "int8 product of {} bytes into {} sums against rows of {row}",
+            x.len(),
+            acc.len()
         );
-        x.len() / row
+        (cells, x.len() / (cells * row))
     }
 }
 
 /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers, `x` holding the rows one after
-/// the other, any CPU: the reference the vector kernels equal.
+/// the other, any CPU: the reference the vector kernels equal. Where `acc` holds several
+/// cells of `outputs` sums, `x` holds each cell's rows in turn, the same number for each
+/// (one call for a row of max-pool cells or of pixels: the checks and the set-up once).
 pub(crate) fn largest_portable(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-    let rows = weights.rows_in(x, acc);
+    let (cells, rows) = weights.cells_in(x, acc);
     let (width, row) = (weights.width, weights.padded_inputs());
-    for (panel, out) in acc.chunks_mut(width).enumerate() {
-        let w = weights.panel(panel);
-        let mut largest = [i32::MIN; 64];
-        for r in 0..rows {
-            let mut sums = [0i32; 64];
-            let sums = &mut sums[..width.min(64)];
-            for (q, bytes) in x[r * row..(r + 1) * row].chunks_exact(4).enumerate() {
-                if bytes == [0; 4] {
-                    continue;
-                }
-                for (column, sum) in sums.iter_mut().enumerate() {
-                    let ws = &w[(q * width + column) * 4..(q * width + column) * 4 + 4];
-                    for (&xv, &wv) in bytes.iter().zip(ws) {
-                        *sum += i32::from(xv) * i32::from(wv);
+    let cell_rows = x
+        .chunks_exact(rows * row)
+        .zip(acc.chunks_mut(weights.outputs));
+    for (x, acc) in cell_rows.take(cells) {
+        for (panel, out) in acc.chunks_mut(width).enumerate() {
+            let w = weights.panel(panel);
+            let mut largest = [i32::MIN; 64];
+            for r in 0..rows {
+                let mut sums = [0i32; 64];
+                let sums = &mut sums[..width.min(64)];
+                for (q, bytes) in x[r * row..(r + 1) * row].chunks_exact(4).enumerate() {
+                    if bytes == [0; 4] {
+                        continue;
+                    }
+                    for (column, sum) in sums.iter_mut().enumerate() {
+                        let ws = &w[(q * width + column) * 4..(q * width + column) * 4 + 4];
+                        for (&xv, &wv) in bytes.iter().zip(ws) {
+                            *sum += i32::from(xv) * i32::from(wv);
+                        }
                     }
                 }
+                for (most, &sum) in largest.iter_mut().zip(sums.iter()) {
+                    *most = (*most).max(sum);
+                }
             }
-            for (most, &sum) in largest.iter_mut().zip(sums.iter()) {
-                *most = (*most).max(sum);
-            }
+            out.copy_from_slice(&largest[..out.len()]);
         }
-        out.copy_from_slice(&largest[..out.len()]);
     }
-}
-
-/// One quad's products into one panel's sums, with intrinsics: `xq` holds the quad's four
-/// input bytes in every 32-bit lane, `$w` points at the quad's weights (aligned), the sums are
-/// 32-bit lanes. `pmaddubsw` leaves 16-bit pair sums (which cannot saturate: [`MAX_WEIGHT`]),
-/// `pmaddwd` with ones adds neighbouring pairs into 32 bits, `paddd` accumulates.
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-macro_rules! sse_quad {
-    ($xq:expr, $w:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
-        let (xq, w) = ($xq, $w);
-        $s0 = _mm_add_epi32(
-            $s0,
-            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w)), $ones),
-        );
-        $s1 = _mm_add_epi32(
-            $s1,
-            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w.add(1))), $ones),
-        );
-        $s2 = _mm_add_epi32(
-            $s2,
-            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w.add(2))), $ones),
-        );
-        $s3 = _mm_add_epi32(
-            $s3,
-            _mm_madd_epi16(_mm_maddubs_epi16(xq, _mm_load_si128(w.add(3))), $ones),
-        );
-    }};
 }
 
 /// One row of `$groups` groups into the four sums of a 16-wide panel, the whole loop in
@@ -212,8 +229,7 @@ macro_rules! sse_quad {
 /// registers. Why assembly: on the V5's eight registers the compiler interleaved a group's
 /// quads and spilled sums to the stack (about 40 % more instructions a group), and around
 /// per-quad `asm!` blocks it set its loop up again after every group it computed (about a
-/// dozen instructions a group); here the loop costs five. The same instructions as
-/// [`sse_quad`], so the same sums.
+/// dozen instructions a group); here the loop costs five.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! row_asm {
     ($bytes:expr, $vectors:expr, $groups:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {
@@ -328,133 +344,115 @@ fn max_epi32_sse2(a: __m128i, b: __m128i) -> __m128i {
     }
 }
 
-/// [`largest_portable`] on 128-bit vectors, panels of 16 outputs held in four registers. The
-/// inputs are read a group (sixteen bytes) at a time: one load, one test that skips sixteen
-/// zero inputs, and `pshufd` to spread each quad over the lanes, which also gives
-/// `pmaddubsw` the copy it overwrites; the weights are its aligned memory operand. That is
-/// four instructions per sixteen outputs of a quad, with the sums, the input, the ones and
-/// one product in seven of the V5's eight registers. Each row's sums then go into the
-/// running maxima (in memory on the V5: once per row, not per quad).
+/// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`) on 128-bit vectors, panels of
+/// 16 outputs held in four registers. The inputs are read a group (sixteen bytes) at a time:
+/// one load, one test that skips sixteen zero inputs, and `pshufd` to spread each quad over
+/// the lanes, which also gives `pmaddubsw` the copy it overwrites; the weights are its
+/// aligned memory operand. That is four instructions per sixteen outputs of a quad, with the
+/// sums, the input, the ones and one product in seven of the V5's eight registers. Each
+/// row's sums then go into the running maxima (in memory on the V5: once per row, not per
+/// quad). The row loop is in assembly ([`row_asm`]; callgrind, int8 CNN forward: V5 6.46 M
+/// -> 5.57 M, V6 4.86 M -> 4.64 M).
 ///
-/// Stamped out twice with the same body: for SSSE3 (the Atoms), and for AVX2 machines'
-/// layers of at most 16 outputs, where a 32-wide panel would be half zeros (the same code in
-/// VEX encoding).
-macro_rules! sse_panels_of_16 {
-    ($(#[$doc:meta])* $name:ident, $feature:literal, $row:ident) => {
-        $(#[$doc])*
-        ///
-        /// # Safety
-        #[doc = concat!("The CPU must have ", $feature, "; `weights.width()` must be 16.")]
-        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-        #[target_feature(enable = $feature)]
-        pub(crate) unsafe fn $name(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-            assert_eq!(weights.width, 16);
-            let rows = weights.rows_in(x, acc);
-            let row = weights.padded_inputs();
-            let ones = _mm_set1_epi16(1);
-            let groups = row / GROUP;
-            for (panel, out) in acc.chunks_mut(16).enumerate() {
-                let w = weights.panel(panel);
-                assert!(w.as_ptr().cast::<WeightBlock>().is_aligned());
-                // A group's weights: four quads of 64 bytes, 16 vectors.
-                assert_eq!(w.len(), groups * GROUP * 16);
-                let panel_vectors = w.as_ptr().cast::<__m128i>();
-                let mut largest = [_mm_set1_epi32(i32::MIN); 4];
-                for inputs in x.chunks_exact(row).take(rows) {
-                    let (mut s0, mut s1, mut s2, mut s3) = (
-                        _mm_setzero_si128(),
-                        _mm_setzero_si128(),
-                        _mm_setzero_si128(),
-                        _mm_setzero_si128(),
-                    );
-                    // SAFETY: `inputs` is a whole row of `groups * GROUP` bytes and the panel
-                    // holds `groups` groups' 16 aligned vectors (asserted above).
-                    unsafe {
-                        $row!(inputs.as_ptr(), panel_vectors, groups, ones, [s0, s1, s2, s3]);
-                    }
-                    for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
-                        *most = max_epi32_sse2(*most, sums);
-                    }
-                }
-                let mut lanes = [0i32; 16];
-                let target = lanes.as_mut_ptr().cast::<__m128i>();
-                // SAFETY: four stores of four lanes into the 16 of `lanes`.
+/// # Safety
+/// The CPU must have SSSE3; `weights.width()` must be 16.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[target_feature(enable = "ssse3")]
+pub(crate) unsafe fn largest_ssse3(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+    assert!(weights.width == 16 && !weights.pairs);
+    let (cells, rows) = weights.cells_in(x, acc);
+    let row = weights.padded_inputs();
+    let ones = _mm_set1_epi16(1);
+    let groups = row / GROUP;
+    let cell_rows = x
+        .chunks_exact(rows * row)
+        .zip(acc.chunks_mut(weights.outputs));
+    for (x, acc) in cell_rows.take(cells) {
+        for (panel, out) in acc.chunks_mut(16).enumerate() {
+            let w = weights.panel(panel);
+            assert!(w.as_ptr().cast::<WeightBlock>().is_aligned());
+            // A group's weights: four quads of 64 bytes, 16 vectors.
+            assert_eq!(w.len(), groups * GROUP * 16);
+            let panel_vectors = w.as_ptr().cast::<__m128i>();
+            let mut largest = [_mm_set1_epi32(i32::MIN); 4];
+            for inputs in x.chunks_exact(row).take(rows) {
+                let (mut s0, mut s1, mut s2, mut s3) = (
+                    _mm_setzero_si128(),
+                    _mm_setzero_si128(),
+                    _mm_setzero_si128(),
+                    _mm_setzero_si128(),
+                );
+                // SAFETY: `inputs` is a whole row of `groups * GROUP` bytes and the panel
+                // holds `groups` groups' 16 aligned vectors (asserted above).
                 unsafe {
-                    for (k, most) in largest.into_iter().enumerate() {
-                        _mm_storeu_si128(target.add(k), most);
-                    }
+                    row_asm!(
+                        inputs.as_ptr(),
+                        panel_vectors,
+                        groups,
+                        ones,
+                        [s0, s1, s2, s3]
+                    );
                 }
+                for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
+                    *most = max_epi32_sse2(*most, sums);
+                }
+            }
+            let mut lanes = [0i32; 16];
+            let whole = out.len() == 16;
+            // Straight into `out` where it holds all 16 (no `memcpy` call).
+            let target = if whole {
+                out.as_mut_ptr()
+            } else {
+                lanes.as_mut_ptr()
+            };
+            // SAFETY: four stores of four lanes into 16 `i32`: `out`'s 16, or `lanes`.
+            unsafe {
+                for (k, most) in largest.into_iter().enumerate() {
+                    _mm_storeu_si128(target.cast::<__m128i>().add(k), most);
+                }
+            }
+            if !whole {
                 out.copy_from_slice(&lanes[..out.len()]);
             }
         }
-    };
+    }
 }
 
-/// One group's four quads with intrinsics ([`sse_quad`]), which the compiler encodes as VEX
-/// in an AVX2 function (no copies needed: three-operand forms).
+/// One group of sixteen input bytes (`xs`, 256 bits: the same sixteen bytes in both halves,
+/// or two rows' sixteen, one per half) times a group's 16 weight vectors at `base` into four
+/// 256-bit sums: per quad one `vpshufd` spread, then per weight vector `vpmaddubsw` (the
+/// weights its memory operand), `vpmaddwd` with ones, `vpaddd`.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-macro_rules! group_intrinsics {
+macro_rules! avx2_group {
     ($xs:expr, $base:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
-        let (xs, base) = ($xs, $base);
-        sse_quad!(
-            _mm_shuffle_epi32::<0x00>(xs),
-            base,
-            $ones,
-            [$s0, $s1, $s2, $s3]
-        );
-        sse_quad!(
-            _mm_shuffle_epi32::<0x55>(xs),
-            base.add(4),
-            $ones,
-            [$s0, $s1, $s2, $s3]
-        );
-        sse_quad!(
-            _mm_shuffle_epi32::<0xaa>(xs),
-            base.add(8),
-            $ones,
-            [$s0, $s1, $s2, $s3]
-        );
-        sse_quad!(
-            _mm_shuffle_epi32::<0xff>(xs),
-            base.add(12),
-            $ones,
-            [$s0, $s1, $s2, $s3]
-        );
-    }};
-}
-
-/// One row into a 16-wide panel's sums with intrinsics ([`group_intrinsics`] per group that
-/// is not all zeros): the AVX2 machines' 16-wide layers.
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-macro_rules! row_intrinsics {
-    ($bytes:expr, $vectors:expr, $groups:expr, $ones:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
-        let (bytes, vectors) = ($bytes, $vectors);
-        for g in 0..$groups {
-            let xs = _mm_loadu_si128(bytes.add(g * GROUP).cast::<__m128i>());
-            if _mm_movemask_epi8(_mm_cmpeq_epi8(xs, _mm_setzero_si128())) == 0xffff {
-                continue;
-            }
-            group_intrinsics!(xs, vectors.add(g * 16), $ones, [$s0, $s1, $s2, $s3]);
+        let (xs, base, ones) = ($xs, $base, $ones);
+        macro_rules! quad {
+            ($xq:expr, $w:expr) => {{
+                let (xq, w) = ($xq, $w);
+                $s0 = _mm256_add_epi32(
+                    $s0,
+                    _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w)), ones),
+                );
+                $s1 = _mm256_add_epi32(
+                    $s1,
+                    _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(1))), ones),
+                );
+                $s2 = _mm256_add_epi32(
+                    $s2,
+                    _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(2))), ones),
+                );
+                $s3 = _mm256_add_epi32(
+                    $s3,
+                    _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(3))), ones),
+                );
+            }};
         }
+        quad!(_mm256_shuffle_epi32::<0x00>(xs), base);
+        quad!(_mm256_shuffle_epi32::<0x55>(xs), base.add(4));
+        quad!(_mm256_shuffle_epi32::<0xaa>(xs), base.add(8));
+        quad!(_mm256_shuffle_epi32::<0xff>(xs), base.add(12));
     }};
 }
-
-// In assembly on both robots' builds. Callgrind, int8 CNN forward: V5 6.46 M -> 5.57 M,
-// V6 4.86 M -> 4.64 M; the host's generic x86-64 build counts a little more with it (5.01 M
-// -> 5.14 M) and is not what the robot runs.
-sse_panels_of_16!(
-    /// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`), panels of 16 outputs.
-    largest_ssse3,
-    "ssse3",
-    row_asm
-);
-sse_panels_of_16!(
-    /// [`largest_ssse3`]'s code on an AVX2 machine (VEX-encoded), for layers of at most 16
-    /// outputs.
-    largest_avx2_16,
-    "avx2",
-    row_intrinsics
-);
 
 /// [`largest_portable`] with AVX2 (`vpmaddubsw`, `vpmaddwd`): panels of 32 outputs in four
 /// registers; a group of sixteen input bytes copied to both 128-bit halves and each quad
@@ -465,91 +463,142 @@ sse_panels_of_16!(
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "avx2")]
 pub(crate) unsafe fn largest_avx2(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-    assert_eq!(weights.width, 32);
-    let rows = weights.rows_in(x, acc);
+    assert!(weights.width == 32 && !weights.pairs);
+    let (cells, rows) = weights.cells_in(x, acc);
     let row = weights.padded_inputs();
+    let groups = row / GROUP;
     let ones = _mm256_set1_epi16(1);
-    macro_rules! quad {
-        ($xq:expr, $w:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {{
-            let (xq, w) = ($xq, $w);
-            $s0 = _mm256_add_epi32(
-                $s0,
-                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w)), ones),
-            );
-            $s1 = _mm256_add_epi32(
-                $s1,
-                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(1))), ones),
-            );
-            $s2 = _mm256_add_epi32(
-                $s2,
-                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(2))), ones),
-            );
-            $s3 = _mm256_add_epi32(
-                $s3,
-                _mm256_madd_epi16(_mm256_maddubs_epi16(xq, _mm256_loadu_si256(w.add(3))), ones),
-            );
-        }};
+    let cell_rows = x
+        .chunks_exact(rows * row)
+        .zip(acc.chunks_mut(weights.outputs));
+    for (x, acc) in cell_rows.take(cells) {
+        for (panel, out) in acc.chunks_mut(32).enumerate() {
+            let w = weights.panel(panel);
+            assert_eq!(w.len(), groups * GROUP * 32);
+            let vectors = w.as_ptr().cast::<__m256i>();
+            let mut largest = [_mm256_set1_epi32(i32::MIN); 4];
+            for inputs in x.chunks_exact(row).take(rows) {
+                let (mut s0, mut s1, mut s2, mut s3) = (
+                    _mm256_setzero_si256(),
+                    _mm256_setzero_si256(),
+                    _mm256_setzero_si256(),
+                    _mm256_setzero_si256(),
+                );
+                for g in 0..groups {
+                    // SAFETY: group `g` of the row (`groups * 16` bytes) and its 16 weight
+                    // vectors of the panel (`groups * 512` bytes, asserted above).
+                    unsafe {
+                        let xs = _mm256_broadcastsi128_si256(_mm_loadu_si128(
+                            inputs.as_ptr().add(g * GROUP).cast::<__m128i>(),
+                        ));
+                        if _mm256_testz_si256(xs, xs) != 0 {
+                            continue;
+                        }
+                        avx2_group!(xs, vectors.add(g * 16), ones, [s0, s1, s2, s3]);
+                    }
+                }
+                for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
+                    *most = _mm256_max_epi32(*most, sums);
+                }
+            }
+            let mut lanes = [0i32; 32];
+            let whole = out.len() == 32;
+            // Straight into `out` where it holds all 32 (no `memcpy` call).
+            let target = if whole {
+                out.as_mut_ptr()
+            } else {
+                lanes.as_mut_ptr()
+            };
+            // SAFETY: four stores of eight lanes into 32 `i32`: `out`'s 32, or `lanes`.
+            unsafe {
+                for (k, most) in largest.into_iter().enumerate() {
+                    _mm256_storeu_si256(target.cast::<__m256i>().add(k), most);
+                }
+            }
+            if !whole {
+                out.copy_from_slice(&lanes[..out.len()]);
+            }
+        }
     }
-    for (panel, out) in acc.chunks_mut(32).enumerate() {
-        let w = weights.panel(panel);
+}
+
+/// [`largest_portable`] with AVX2 for layers of at most 16 outputs ([`QuadPanels::pairs`]):
+/// two rows at once, one per 128-bit half, so each `vpmaddubsw` computes four outputs' four
+/// products for both rows, where 128-bit code on one row leaves half of every instruction
+/// unused. A last row without a partner is paired with itself (the largest is the same).
+/// At the end each output's largest of its two halves. Callgrind, host, int8 CNN forward:
+/// the 16-wide layers' kernel 1.2 M -> see cross/README.md.
+///
+/// # Safety
+/// The CPU must have AVX2; `weights` must be laid out by [`QuadPanels::pairs`].
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[target_feature(enable = "avx2")]
+pub(crate) unsafe fn largest_avx2_pairs(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+    assert!(weights.pairs && weights.width == 32 && weights.outputs <= 16);
+    let (cells, rows) = weights.cells_in(x, acc);
+    let row = weights.padded_inputs();
+    let groups = row / GROUP;
+    let w = weights.panel(0);
+    assert_eq!(w.len(), groups * GROUP * 32);
+    let vectors = w.as_ptr().cast::<__m256i>();
+    let ones = _mm256_set1_epi16(1);
+    let cell_rows = x
+        .chunks_exact(rows * row)
+        .zip(acc.chunks_mut(weights.outputs));
+    for (x, acc) in cell_rows.take(cells) {
         let mut largest = [_mm256_set1_epi32(i32::MIN); 4];
-        for inputs in x.chunks_exact(row).take(rows) {
+        for first in (0..rows).step_by(2) {
+            let a = x[first * row..].as_ptr();
+            let b = x[(first + 1).min(rows - 1) * row..].as_ptr();
             let (mut s0, mut s1, mut s2, mut s3) = (
                 _mm256_setzero_si256(),
                 _mm256_setzero_si256(),
                 _mm256_setzero_si256(),
                 _mm256_setzero_si256(),
             );
-            for (group, group_weights) in inputs.chunks_exact(GROUP).zip(w.chunks_exact(GROUP * 32))
-            {
-                // SAFETY: `group` is 16 bytes and `group_weights` 512 (exact chunks), read
-                // unaligned.
+            for g in 0..groups {
+                // SAFETY: rows `first` and `first + 1` (or `first` again) are whole rows of
+                // `groups * 16` bytes inside the cell's `x` (`cells_in`), and the panel holds
+                // `groups` groups' 16 weight vectors (asserted above).
                 unsafe {
-                    let xs = _mm_loadu_si128(group.as_ptr().cast::<__m128i>());
-                    if _mm_movemask_epi8(_mm_cmpeq_epi8(xs, _mm_setzero_si128())) == 0xffff {
+                    let xs = _mm256_inserti128_si256::<1>(
+                        _mm256_castsi128_si256(_mm_loadu_si128(a.add(g * GROUP).cast::<__m128i>())),
+                        _mm_loadu_si128(b.add(g * GROUP).cast::<__m128i>()),
+                    );
+                    if _mm256_testz_si256(xs, xs) != 0 {
                         continue;
                     }
-                    let xs = _mm256_broadcastsi128_si256(xs);
-                    let base = group_weights.as_ptr().cast::<__m256i>();
-                    quad!(_mm256_shuffle_epi32::<0x00>(xs), base, [s0, s1, s2, s3]);
-                    quad!(
-                        _mm256_shuffle_epi32::<0x55>(xs),
-                        base.add(4),
-                        [s0, s1, s2, s3]
-                    );
-                    quad!(
-                        _mm256_shuffle_epi32::<0xaa>(xs),
-                        base.add(8),
-                        [s0, s1, s2, s3]
-                    );
-                    quad!(
-                        _mm256_shuffle_epi32::<0xff>(xs),
-                        base.add(12),
-                        [s0, s1, s2, s3]
-                    );
+                    avx2_group!(xs, vectors.add(g * 16), ones, [s0, s1, s2, s3]);
                 }
             }
             for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
                 *most = _mm256_max_epi32(*most, sums);
             }
         }
-        let mut lanes = [0i32; 32];
-        let target = lanes.as_mut_ptr().cast::<__m256i>();
-        // SAFETY: four stores of eight lanes into the 32 of `lanes`.
+        let mut lanes = [0i32; 16];
+        let whole = acc.len() == 16;
+        // Straight into `acc` where it holds all 16 (no copy: a `memcpy` call a cell).
+        let target = if whole {
+            acc.as_mut_ptr()
+        } else {
+            lanes.as_mut_ptr()
+        };
+        // SAFETY: four stores of four lanes into 16 `i32`: `acc`'s 16, or `lanes`.
         unsafe {
             for (k, most) in largest.into_iter().enumerate() {
-                _mm256_storeu_si256(target.add(k), most);
+                let halves = _mm_max_epi32(
+                    _mm256_castsi256_si128(most),
+                    _mm256_extracti128_si256::<1>(most),
+                );
+                _mm_storeu_si128(target.cast::<__m128i>().add(k), halves);
             }
         }
-        out.copy_from_slice(&lanes[..out.len()]);
+        if !whole {
+            acc.copy_from_slice(&lanes[..acc.len()]);
+        }
     }
 }
 
-/// Which int8 kernel a plan calls, chosen once at load for the instruction set it was
-/// lowered for and checked against this CPU there: AVX2 (panels of 32 outputs, or 16 for
-/// layers that narrow) where the float kernels are AVX2 or AVX-512, SSSE3 (16) on the SSSE3
-/// and SSE4.2 sets (the V5 and V6 Atoms), the portable one on SSE2 and the portable set. The
-/// field is private, so a kernel this CPU lacks cannot be named.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Int8Kernel(Kind);
 
@@ -589,34 +638,94 @@ impl Int8Kernel {
         }
     }
 
-    /// The panel width a layer of `outputs` outputs is laid out in for this kernel: 16, or on
-    /// AVX2 32 where the layer has more than 16 (a 32-wide panel of a 16-output layer would
-    /// be half zeros, so those take the 16-wide code in AVX2's encoding).
-    pub(crate) fn width_for(self, outputs: usize) -> usize {
+    /// `rows`, `[out][in]`, laid out for this kernel: panels of 16 outputs, or on AVX2
+    /// panels of 32 where the layer has more than 16 outputs and [`QuadPanels::pairs`]
+    /// where it has at most 16 (a 32-wide panel of a 16-output layer would be half zeros).
+    pub(crate) fn lay_out(
+        self,
+        rows: &[i8],
+        outputs: usize,
+        inputs: usize,
+    ) -> Result<QuadPanels, WeightOutOfRange> {
         match self.0 {
-            Kind::Avx2 if outputs > 16 => 32,
-            _ => 16,
+            Kind::Avx2 if outputs > 16 => QuadPanels::new(rows, outputs, inputs, 32),
+            Kind::Avx2 => QuadPanels::pairs(rows, outputs, inputs),
+            _ => QuadPanels::new(rows, outputs, inputs, 16),
+        }
+    }
+
+    /// Whether `weights` are laid out as [`Self::lay_out`] lays them out.
+    fn fits(self, weights: &QuadPanels) -> bool {
+        match self.0 {
+            Kind::Avx2 if weights.outputs > 16 => weights.width == 32 && !weights.pairs,
+            Kind::Avx2 => weights.pairs,
+            _ => weights.width == 16 && !weights.pairs,
         }
     }
 
     /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers, `x` holding whole rows of
     /// [`QuadPanels::padded_inputs`] bytes one after the other; `weights` laid out for this
-    /// kernel ([`Self::width_for`]). One row is a plain product.
+    /// kernel ([`Self::lay_out`]). One row is a plain product.
     #[inline]
     pub(crate) fn largest(self, x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-        assert_eq!(weights.width, self.width_for(weights.outputs));
-        match (self.0, weights.width) {
+        assert!(
+            self.fits(weights),
+            "int8 weights laid out for another kernel"
+        );
+        match self.0 {
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-            // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; width checked.
-            (Kind::Ssse3, _) => unsafe { largest_ssse3(x, weights, acc) },
+            // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; layout checked.
+            Kind::Ssse3 => unsafe { largest_ssse3(x, weights, acc) },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-            // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; width checked.
-            (Kind::Avx2, 32) => unsafe { largest_avx2(x, weights, acc) },
+            // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; layout checked.
+            Kind::Avx2 if weights.pairs => unsafe { largest_avx2_pairs(x, weights, acc) },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-            // SAFETY: as above; 16 wide.
-            (Kind::Avx2, _) => unsafe { largest_avx2_16(x, weights, acc) },
+            // SAFETY: as above; 32 wide.
+            Kind::Avx2 => unsafe { largest_avx2(x, weights, acc) },
             _ => largest_portable(x, weights, acc),
         }
+    }
+}
+
+/// `QuantizeLinear` of a run of floats: `codes[i] = grid.code(values[i])` for the first
+/// `min(len)` of each, sixteen at a time with SSE2 on x86 (both Naos): `mulps` by the
+/// inverse scale, `maxps`/`minps` to +-512 (`maxps` answers its second operand for a NaN, as
+/// [`Grid::code`]'s `max` does), `cvtps2dq` (rounds half to even in the default mode, as the
+/// scalar code's 1.5 x 2^23 does), the zero point added in 32 bits, then `packssdw` and
+/// `packuswb`, whose saturation is the clamp to 0..=255. The compiler left the scalar loop
+/// at about seven instructions a code (callgrind, host AVX2, int8 CNN forward: 0.34 M of
+/// its 2.1 M for 46,000 codes); here about two. Equal to the scalar code bit for bit (a
+/// test holds it to it on the edge cases).
+#[inline(always)]
+pub(crate) fn code_run(grid: Grid, values: &[f32], codes: &mut [u8]) {
+    let n = values.len().min(codes.len());
+    #[allow(unused_mut)]
+    let mut done = 0;
+    #[cfg(all(
+        any(target_arch = "x86", target_arch = "x86_64"),
+        target_feature = "sse2"
+    ))]
+    // SAFETY: SSE2 is enabled for this build (the cfg); every load reads 16 floats at `done`
+    // and every store writes 16 bytes at `done`, with `done + 16 <= n`, inside both slices.
+    unsafe {
+        let inverse = _mm_set1_ps(grid.inverse());
+        let (low, high) = (_mm_set1_ps(-512.0), _mm_set1_ps(512.0));
+        let zero = _mm_set1_epi32(i32::from(grid.zero()));
+        let code = |at: *const f32| {
+            let steps = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_loadu_ps(at), inverse), low), high);
+            _mm_add_epi32(_mm_cvtps_epi32(steps), zero)
+        };
+        while done + 16 <= n {
+            let at = values.as_ptr().add(done);
+            let low_words = _mm_packs_epi32(code(at), code(at.add(4)));
+            let high_words = _mm_packs_epi32(code(at.add(8)), code(at.add(12)));
+            let bytes = _mm_packus_epi16(low_words, high_words);
+            _mm_storeu_si128(codes.as_mut_ptr().add(done).cast::<__m128i>(), bytes);
+            done += 16;
+        }
+    }
+    for (code, &value) in codes[done..n].iter_mut().zip(&values[done..n]) {
+        *code = grid.code(value);
     }
 }
 
@@ -634,6 +743,8 @@ pub(crate) struct Window {
     pub channels: usize,
     pub kernel: [usize; 2],
     pub stride: [usize; 2],
+    /// [`Self::padded_len`], worked out once.
+    len: usize,
 }
 
 /// Rows up to this many bytes are copied 8 bytes at a time.
@@ -646,12 +757,15 @@ impl Window {
         kernel: [usize; 2],
         stride: [usize; 2],
     ) -> Self {
-        Self {
+        let mut window = Self {
             padded_width,
             channels,
             kernel,
             stride,
-        }
+            len: 0,
+        };
+        window.len = window.extent().div_ceil(GROUP) * GROUP;
+        window
     }
 
     /// The bytes of one kernel row of a window.
@@ -672,7 +786,7 @@ impl Window {
     /// The weights' inputs and the bytes of one copied window: its extent rounded up to
     /// whole groups of 16.
     pub(crate) fn padded_len(&self) -> usize {
-        self.extent().div_ceil(GROUP) * GROUP
+        self.len
     }
 
     /// How many bytes past the map a bottom-right window's last short row reads (its 8-byte
@@ -696,48 +810,118 @@ impl Window {
         laid_out
     }
 
-    /// Copies the window of output pixel `(y, x)` out of `codes` into `out`
-    /// ([`Self::padded_len`] bytes); the bytes after the window are left as they are (they
-    /// meet zero weights). Bounds are checked once per window, not per row (the V5's first
-    /// layer copies 24,000 rows a forward).
+    /// Copies the windows of the `rows x columns` output pixels from `(y, x)` on (a max-pool
+    /// cell's), row by row, into `out`, one after the other, each [`Self::padded_len`]
+    /// bytes: one block of [`Self::gather_cells`].
+    #[cfg(test)]
+    pub(crate) fn gather_block(
+        &self,
+        codes: &[u8],
+        pixel: [usize; 2],
+        block: [usize; 2],
+        out: &mut [u8],
+    ) {
+        self.gather_cells(codes, pixel, block, [1, 1], out);
+    }
+
+    /// Copies the windows of `cells` blocks of `rows x columns` output pixels, the first
+    /// from pixel `(y, x)` on, each next one `step` pixels to the right (a row of max-pool
+    /// cells, or with 1 x 1 blocks a row of pixels), into `out`: block by block, each block
+    /// row by row, each window [`Self::padded_len`] bytes. Bounds are checked and the
+    /// offsets worked out once per call, not per window or row (the V5's first layer copies
+    /// 24,000 rows a forward; callgrind, host AVX2, int8 CNN forward: a check and the
+    /// offsets per window cost 0.3 to 0.5 M instructions).
     #[inline(always)]
-    pub(crate) fn gather(&self, codes: &[u8], [y, x]: [usize; 2], out: &mut [u8]) {
-        let (row, kh) = (self.row(), self.kernel[0]);
-        let pitch = self.padded_width * self.channels;
-        let first = ((y * self.stride[0]) * self.padded_width + x * self.stride[1]) * self.channels;
-        let out = &mut out[..self.padded_len()];
-        if kh == 0 {
+    pub(crate) fn gather_cells(
+        &self,
+        codes: &[u8],
+        [y, x]: [usize; 2],
+        [rows, columns]: [usize; 2],
+        [cells, step]: [usize; 2],
+        out: &mut [u8],
+    ) {
+        let (row, kh, len, c) = (self.row(), self.kernel[0], self.len, self.channels);
+        if kh == 0 || rows == 0 || columns == 0 || cells == 0 {
             return;
         }
+        let pitch = self.padded_width * c;
+        // The last block's last window's last row ends furthest into `codes` (8 bytes where
+        // short).
+        let copied = row.max(SHORT_ROW);
+        let end = (y + rows - 1)
+            .checked_mul(self.stride[0])
+            .and_then(|top| top.checked_add(kh - 1))
+            .and_then(|bottom| bottom.checked_mul(self.padded_width))
+            .and_then(|offset| {
+                let last = (cells - 1)
+                    .checked_mul(step)?
+                    .checked_add(x + columns - 1)?;
+                offset.checked_add(last.checked_mul(self.stride[1])?)
+            })
+            .and_then(|pixel| pixel.checked_mul(c))
+            .and_then(|first| first.checked_add(copied));
+        let windows = cells.checked_mul(rows * columns);
+        assert!(
+            end.is_some_and(|end| end <= codes.len())
+                && windows.is_some_and(|n| n.checked_mul(len).is_some_and(|n| n <= out.len()))
+                && (kh - 1) * row + copied <= len,
+            "int8 window outside its map"
+        );
+        // Byte offsets: of the first window, from block to block, from window row to window
+        // row and window to window inside a block.
+        let first = ((y * self.stride[0]) * self.padded_width + x * self.stride[1]) * c;
+        let (block_step, window_down, window_right) = (
+            step * self.stride[1] * c,
+            self.stride[0] * pitch,
+            self.stride[1] * c,
+        );
+        let (source, target) = (codes.as_ptr(), out.as_mut_ptr());
+        // Window `k` of the call (block by block, each row by row) and where it starts.
+        let windows = (0..cells).flat_map(|cell| {
+            (0..rows).flat_map(move |dy| {
+                (0..columns)
+                    .map(move |dx| first + cell * block_step + dy * window_down + dx * window_right)
+            })
+        });
+        // SAFETY (both loops): row `ky` of each window reads `copied` bytes from
+        // `start + ky * pitch`, at most the last window's last row's end, inside `codes`
+        // (checked above), and writes them `ky * row` bytes into the window's `len` bytes
+        // of `out`, the windows one after the other (all inside `out`, checked above).
         if row > SHORT_ROW {
-            for (ky, target) in out.chunks_exact_mut(row).take(kh).enumerate() {
-                target.copy_from_slice(&codes[first + ky * pitch..][..row]);
+            for (k, start) in windows.enumerate() {
+                for ky in 0..kh {
+                    unsafe {
+                        core::ptr::copy_nonoverlapping(
+                            source.add(start + ky * pitch),
+                            target.add(k * len + ky * row),
+                            row,
+                        );
+                    }
+                }
             }
             return;
         }
-        let end = kh
-            .checked_sub(1)
-            .and_then(|rows| rows.checked_mul(pitch))
-            .and_then(|offset| offset.checked_add(first))
-            .and_then(|start| start.checked_add(SHORT_ROW));
-        assert!(
-            end.is_some_and(|end| end <= codes.len()) && (kh - 1) * row + SHORT_ROW <= out.len(),
-            "int8 window outside its map"
-        );
-        for ky in 0..kh {
-            // SAFETY: row `ky` reads `codes[first + ky * pitch..][..8]`, inside `codes` as
-            // the last row's end is (checked above), and writes `out[ky * row..][..8]`,
-            // inside `out` as the last row's is (checked above; `padded_len` covers it).
-            unsafe {
-                let bytes = codes
-                    .as_ptr()
-                    .add(first + ky * pitch)
-                    .cast::<[u8; SHORT_ROW]>()
-                    .read_unaligned();
-                out.as_mut_ptr()
-                    .add(ky * row)
-                    .cast::<[u8; SHORT_ROW]>()
-                    .write_unaligned(bytes);
+        let copy = |from: usize, to: usize| unsafe {
+            target
+                .add(to)
+                .cast::<[u8; SHORT_ROW]>()
+                .write_unaligned(source.add(from).cast::<[u8; SHORT_ROW]>().read_unaligned());
+        };
+        if kh == 5 {
+            // The CNNs' 5 x 5 kernels, unrolled: five loads and five stores a window.
+            for (k, start) in windows.enumerate() {
+                let to = k * len;
+                copy(start, to);
+                copy(start + pitch, to + row);
+                copy(start + 2 * pitch, to + 2 * row);
+                copy(start + 3 * pitch, to + 3 * row);
+                copy(start + 4 * pitch, to + 4 * row);
+            }
+        } else {
+            for (k, start) in windows.enumerate() {
+                for ky in 0..kh {
+                    copy(start + ky * pitch, k * len + ky * row);
+                }
             }
         }
     }
@@ -809,11 +993,18 @@ mod tests {
                 // SAFETY: AVX2 detected; width 32.
                 unsafe { largest_avx2(&padded, &weights, &mut acc) };
                 results.push(("avx2", acc));
-                let weights = QuadPanels::new(rows, outputs, inputs, 16).expect("in range");
+                // Two rows at a time: the layout for at most 16 outputs, in pieces of 16.
                 let mut acc = vec![0; outputs];
-                // SAFETY: AVX2 detected; width 16.
-                unsafe { largest_avx2_16(&padded, &weights, &mut acc) };
-                results.push(("avx2, 16 wide", acc));
+                for (piece, out) in acc.chunks_mut(16).enumerate() {
+                    let columns = out.len();
+                    let piece_rows: Vec<i8> =
+                        rows[piece * 16 * inputs..][..columns * inputs].to_vec();
+                    let weights =
+                        QuadPanels::pairs(&piece_rows, columns, inputs).expect("in range");
+                    // SAFETY: AVX2 detected; laid out in pairs.
+                    unsafe { largest_avx2_pairs(&padded, &weights, out) };
+                }
+                results.push(("avx2, pairs of rows", acc));
             }
         }
         results
@@ -850,7 +1041,7 @@ mod tests {
             let rows: Vec<i8> = (0..outputs * inputs)
                 .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
                 .collect();
-            for count in [1, 4] {
+            for count in [1, 3, 4] {
                 // Half the inputs zero, as after ReLU, and every other run of 24 inputs
                 // zero, so that skipped groups of 16 are tested too.
                 let xs: Vec<Vec<u8>> = (0..count)
@@ -872,6 +1063,95 @@ mod tests {
                         acc, expected,
                         "{kernel}, {outputs}x{inputs}, {count} row(s)"
                     );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn coding_a_run_equals_coding_each_value() {
+        // Halves (rounded to even), the ends of the range and past them, the clamp at +-512
+        // steps, infinities, NaN, negative zero; runs of every length around 16.
+        let mut rng = Lcg(17);
+        for (scale, zero) in [(0.02f32, 0u8), (0.013, 128), (1.0 / 255.0, 3), (7.5, 255)] {
+            let grid = Grid::new(scale, zero).expect("a grid");
+            let mut values: Vec<f32> = Vec::new();
+            for k in -600..600 {
+                values.push((k as f32 + 0.5) * scale);
+                values.push(k as f32 * scale);
+            }
+            values.extend([
+                f32::NAN,
+                -f32::NAN,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                -0.0,
+                f32::MAX,
+                f32::MIN,
+                f32::MIN_POSITIVE,
+            ]);
+            values.extend(
+                (0..200).map(|_| (rng.next() as f32 / 2f32.powi(31) - 0.5) * 600.0 * scale),
+            );
+            for start in 0..3 {
+                for len in [0, 1, 15, 16, 17, 31, 32, 33, values.len() - start] {
+                    let run = &values[start..start + len];
+                    let mut codes = vec![0xeeu8; len];
+                    code_run(grid, run, &mut codes);
+                    let expected: Vec<u8> = run.iter().map(|&v| grid.code(v)).collect();
+                    assert_eq!(
+                        codes, expected,
+                        "scale {scale}, zero {zero}, {len} from {start}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn several_cells_in_one_call_equal_one_call_each() {
+        // A row of max-pool cells (or of pixels) goes to the kernel in one call: each cell's
+        // outputs must be those of the cell alone, for every layout and row count.
+        let mut rng = Lcg(41);
+        for (outputs, inputs) in [(16, 32), (8, 25), (32, 400), (37, 13)] {
+            let rows: Vec<i8> = (0..outputs * inputs)
+                .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
+                .collect();
+            for (cells, per_cell) in [(1, 1), (5, 1), (7, 4), (3, 3)] {
+                for kernel in [
+                    Int8Kernel::PORTABLE,
+                    Int8Kernel::ssse3(),
+                    Int8Kernel::avx2(),
+                ] {
+                    let weights = kernel.lay_out(&rows, outputs, inputs).expect("in range");
+                    let row = weights.padded_inputs();
+                    let x: Vec<u8> = (0..cells * per_cell * row)
+                        .map(|i| {
+                            if i % row < inputs {
+                                rng.next() as u8
+                            } else {
+                                0
+                            }
+                        })
+                        .collect();
+                    let mut together = vec![0i32; cells * outputs];
+                    kernel.largest(&x, &weights, &mut together);
+                    for cell in 0..cells {
+                        let mut alone = vec![0i32; outputs];
+                        let part = &x[cell * per_cell * row..(cell + 1) * per_cell * row];
+                        kernel.largest(part, &weights, &mut alone);
+                        assert_eq!(
+                            together[cell * outputs..(cell + 1) * outputs],
+                            alone,
+                            "{}, {outputs}x{inputs}, cell {cell} of {cells}, {per_cell} row(s)",
+                            kernel.name()
+                        );
+                        let xs: Vec<Vec<u8>> = part
+                            .chunks_exact(row)
+                            .map(|r| r[..inputs].to_vec())
+                            .collect();
+                        assert_eq!(alone, largest_reference(&xs, &rows, outputs, inputs));
+                    }
                 }
             }
         }
@@ -934,8 +1214,18 @@ mod tests {
                 value: -65
             })
         );
+        // Laid out in pairs of rows, the error names the real output too.
+        assert_eq!(
+            QuadPanels::pairs(&rows, 8, 5),
+            Err(WeightOutOfRange {
+                output: 3,
+                input: 2,
+                value: -65
+            })
+        );
         rows[3 * 5 + 2] = 127;
         assert!(QuadPanels::new(&rows, 8, 5, 8).is_err());
+        assert!(QuadPanels::pairs(&rows, 8, 5).is_err());
         rows[3 * 5 + 2] = -64;
         assert!(QuadPanels::new(&rows, 8, 5, 8).is_ok());
     }
@@ -991,6 +1281,30 @@ mod tests {
                 .collect();
             let laid_out = window.weights(&rows, oc);
             let (oh, ow) = ((ph - kh) / stride[0] + 1, (pw - kw) / stride[1] + 1);
+            // A row of pixels as one block: the same bytes as window by window.
+            let len = window.padded_len();
+            for y in 0..oh {
+                let mut block = vec![0x5au8; ow * len];
+                window.gather_block(&codes, [y, 0], [1, ow], &mut block);
+                let mut one_by_one = vec![0x5au8; ow * len];
+                for x in 0..ow {
+                    let slot = &mut one_by_one[x * len..(x + 1) * len];
+                    window.gather_block(&codes, [y, x], [1, 1], slot);
+                }
+                assert_eq!(block, one_by_one, "row {y}");
+            }
+            // A row of whole 2x2 cells as one call: the same bytes as cell by cell.
+            for y in (0..oh.saturating_sub(1)).step_by(2) {
+                let cells = ow / 2;
+                let mut row_of_cells = vec![0x3cu8; cells * 4 * len];
+                window.gather_cells(&codes, [y, 0], [2, 2], [cells, 2], &mut row_of_cells);
+                let mut cell_by_cell = vec![0x3cu8; cells * 4 * len];
+                for cell in 0..cells {
+                    let slot = &mut cell_by_cell[cell * 4 * len..(cell + 1) * 4 * len];
+                    window.gather_block(&codes, [y, 2 * cell], [2, 2], slot);
+                }
+                assert_eq!(row_of_cells, cell_by_cell, "cells of row {y}");
+            }
             let definition = |y: usize, x: usize, o: usize| -> i64 {
                 let mut sum = 0i64;
                 for ky in 0..kh {
@@ -1009,9 +1323,9 @@ mod tests {
                 Int8Kernel::ssse3(),
                 Int8Kernel::avx2(),
             ] {
-                let weights =
-                    QuadPanels::new(&laid_out, oc, window.padded_len(), kernel.width_for(oc))
-                        .expect("in range");
+                let weights = kernel
+                    .lay_out(&laid_out, oc, window.padded_len())
+                    .expect("in range");
                 let len = window.padded_len();
                 // Stale bytes in the scratch must not matter.
                 let mut windows = vec![0xa5u8; 4 * len];
@@ -1026,7 +1340,14 @@ mod tests {
                         .filter(|&[py, px]| py < oh && px < ow)
                         .collect();
                     for (i, &pixel) in pixels.iter().enumerate() {
-                        window.gather(&codes, pixel, &mut windows[i * len..(i + 1) * len]);
+                        let slot = &mut windows[i * len..(i + 1) * len];
+                        window.gather_block(&codes, pixel, [1, 1], slot);
+                    }
+                    if pixels.len() == 4 {
+                        // The cell as one block: the same bytes as window by window.
+                        let mut block = vec![0xa5u8; 4 * len];
+                        window.gather_block(&codes, [y, x], [2, 2], &mut block);
+                        assert_eq!(block, windows[..4 * len], "cell ({y}, {x})");
                     }
                     kernel.largest(&windows[..pixels.len() * len], &weights, &mut sums);
                     for (o, &sum) in sums.iter().enumerate() {

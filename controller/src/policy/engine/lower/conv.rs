@@ -315,8 +315,9 @@ impl Lowerer {
             stride: strides,
             out,
         });
-        // Room for a pool cell's windows, copied one after the other.
-        conv.windows = vec![0; kernel[0] * kernel[1] * conv.window.padded_len()];
+        // Room for a row of pool cells' windows, copied one after the other, and their sums.
+        conv.windows = vec![0; kernel[0] * kernel[1] * conv.window.padded_len() * out[1]];
+        conv.sums = vec![0; conv.weights.outputs() * out[1]];
         conv.out = to;
         let full = std::mem::take(&mut self.buffers[buffer]);
         self.allocated = self.allocated.saturating_sub(full.len());

@@ -17,7 +17,7 @@
 //!   computes from them.
 
 use super::*;
-use crate::policy::engine::kernels::int8::{QuadPanels, Window};
+use crate::policy::engine::kernels::int8::Window;
 use crate::policy::engine::layout::Grid;
 use crate::policy::engine::plan::{Epilogue, QuantizedConv, QuantizedDense};
 
@@ -376,7 +376,7 @@ impl Lowerer {
             }
         }
         let rows = window.weights(&ordered, oc);
-        let Ok(panels) = QuadPanels::new(&rows, oc, inputs, self.int8.width_for(oc)) else {
+        let Ok(panels) = self.int8.lay_out(&rows, oc, inputs) else {
             return Ok(None);
         };
         let epilogue = Self::epilogue(grid, &rows, inputs, &scales, bias.to_vec());
@@ -394,8 +394,9 @@ impl Lowerer {
             kernel: self.int8,
             epilogue,
             codes: vec![grid.zero(); padded_len + window.slack()],
-            windows: vec![0; inputs],
-            sums: vec![0; oc],
+            // One row of output pixels' windows and sums ([`QuantizedConv`]).
+            windows: vec![0; elements(&[inputs, out[1]])?],
+            sums: vec![0; elements(&[oc, out[1]])?],
             out: out_buffer,
             pool: None,
         }))
@@ -435,7 +436,7 @@ impl Lowerer {
                 };
             }
         }
-        let Ok(panels) = QuadPanels::new(&rows, n, k, self.int8.width_for(n)) else {
+        let Ok(panels) = self.int8.lay_out(&rows, n, k) else {
             return Ok(None);
         };
         let padded_inputs = panels.padded_inputs();
