@@ -18,11 +18,13 @@
 //! whole groups with zero weights; a group of sixteen zero inputs (common after ReLU and
 //! max-pooling) is skipped with its weights.
 //!
-//! One call computes the largest of several products `W x_r` per output ([`Int8Kernel::largest`]):
-//! a dense row is one `x`; a convolution hands over the windows of a max-pool's cell (four
-//! for the CNN's 2x2 pools) copied one after the other by [`Window::gather`], so the pool's
-//! maximum is taken in vector registers and the call, its checks and the panel set-up are
-//! paid once per pooled output instead of once per pixel.
+//! One call computes, for each of several cells, the largest of its products `W x_r` per
+//! output ([`Int8Kernel::largest`]): a dense row is one cell of one `x`; a convolution hands
+//! over a whole row of max-pool cells (four windows each for the CNN's 2x2 pools), copied one
+//! after the other by [`Window::gather_cells`], so the pool's maximum is taken in vector
+//! registers and the call, its checks and the set-up are paid once per row of outputs. On
+//! AVX2, layers of at most 16 outputs are laid out in [`QuadPanels::pairs`] and computed two
+//! rows at a time, one per 128-bit half.
 //!
 //! History, measured with callgrind (cross/README.md): one call per pixel with the window
 //! read in place (a segment per kernel row) and one quad per broadcast cost 8.07 M
