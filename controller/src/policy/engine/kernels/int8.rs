@@ -346,6 +346,21 @@ fn max_epi32_sse2(a: __m128i, b: __m128i) -> __m128i {
     }
 }
 
+/// Gives `store` a place for a panel's `N` sums: `out` itself where it holds exactly `N`, else
+/// a scratch array whose first `out.len()` are then copied into `out` (a last, narrower
+/// panel). `store` writes at most `N` sums through the pointer.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[inline(always)]
+fn write_sums<const N: usize>(out: &mut [i32], store: impl FnOnce(*mut i32)) {
+    if out.len() == N {
+        store(out.as_mut_ptr());
+    } else {
+        let mut lanes = [0i32; N];
+        store(lanes.as_mut_ptr());
+        out.copy_from_slice(&lanes[..out.len()]);
+    }
+}
+
 /// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`) on 128-bit vectors, panels of
 /// 16 outputs held in four registers. The inputs are read a group (sixteen bytes) at a time:
 /// one load, one test that skips sixteen zero inputs, and `pshufd` to spread each quad over
@@ -399,23 +414,14 @@ pub(crate) unsafe fn largest_ssse3(x: &[u8], weights: &QuadPanels, acc: &mut [i3
                     *most = max_epi32_sse2(*most, sums);
                 }
             }
-            let mut lanes = [0i32; 16];
-            let whole = out.len() == 16;
-            // Straight into `out` where it holds all 16 (no `memcpy` call).
-            let target = if whole {
-                out.as_mut_ptr()
-            } else {
-                lanes.as_mut_ptr()
-            };
-            // SAFETY: four stores of four lanes into 16 `i32`: `out`'s 16, or `lanes`.
-            unsafe {
-                for (k, most) in largest.into_iter().enumerate() {
-                    _mm_storeu_si128(target.cast::<__m128i>().add(k), most);
+            write_sums::<16>(out, |target| {
+                // SAFETY: four stores of four lanes into the 16 `i32` at `target`.
+                unsafe {
+                    for (k, most) in largest.into_iter().enumerate() {
+                        _mm_storeu_si128(target.cast::<__m128i>().add(k), most);
+                    }
                 }
-            }
-            if !whole {
-                out.copy_from_slice(&lanes[..out.len()]);
-            }
+            });
         }
     }
 }
@@ -503,23 +509,14 @@ pub(crate) unsafe fn largest_avx2(x: &[u8], weights: &QuadPanels, acc: &mut [i32
                     *most = _mm256_max_epi32(*most, sums);
                 }
             }
-            let mut lanes = [0i32; 32];
-            let whole = out.len() == 32;
-            // Straight into `out` where it holds all 32 (no `memcpy` call).
-            let target = if whole {
-                out.as_mut_ptr()
-            } else {
-                lanes.as_mut_ptr()
-            };
-            // SAFETY: four stores of eight lanes into 32 `i32`: `out`'s 32, or `lanes`.
-            unsafe {
-                for (k, most) in largest.into_iter().enumerate() {
-                    _mm256_storeu_si256(target.cast::<__m256i>().add(k), most);
+            write_sums::<32>(out, |target| {
+                // SAFETY: four stores of eight lanes into the 32 `i32` at `target`.
+                unsafe {
+                    for (k, most) in largest.into_iter().enumerate() {
+                        _mm256_storeu_si256(target.cast::<__m256i>().add(k), most);
+                    }
                 }
-            }
-            if !whole {
-                out.copy_from_slice(&lanes[..out.len()]);
-            }
+            });
         }
     }
 }
@@ -529,7 +526,8 @@ pub(crate) unsafe fn largest_avx2(x: &[u8], weights: &QuadPanels, acc: &mut [i32
 /// products for both rows, where 128-bit code on one row leaves half of every instruction
 /// unused. A last row without a partner is paired with itself (the largest is the same).
 /// At the end each output's largest of its two halves. Callgrind, host, int8 CNN forward:
-/// the 16-wide layers' kernel 1.2 M -> see cross/README.md.
+/// the 16-wide layers' kernel about 1.2 M instructions with 128-bit code, 0.6 M here
+/// (cross/README.md, "int8, fifth round").
 ///
 /// # Safety
 /// The CPU must have AVX2; `weights` must be laid out by [`QuadPanels::pairs`].
@@ -577,27 +575,18 @@ pub(crate) unsafe fn largest_avx2_pairs(x: &[u8], weights: &QuadPanels, acc: &mu
                 *most = _mm256_max_epi32(*most, sums);
             }
         }
-        let mut lanes = [0i32; 16];
-        let whole = acc.len() == 16;
-        // Straight into `acc` where it holds all 16 (no copy: a `memcpy` call a cell).
-        let target = if whole {
-            acc.as_mut_ptr()
-        } else {
-            lanes.as_mut_ptr()
-        };
-        // SAFETY: four stores of four lanes into 16 `i32`: `acc`'s 16, or `lanes`.
-        unsafe {
-            for (k, most) in largest.into_iter().enumerate() {
-                let halves = _mm_max_epi32(
-                    _mm256_castsi256_si128(most),
-                    _mm256_extracti128_si256::<1>(most),
-                );
-                _mm_storeu_si128(target.cast::<__m128i>().add(k), halves);
+        write_sums::<16>(acc, |target| {
+            // SAFETY: four stores of four lanes into the 16 `i32` at `target`.
+            unsafe {
+                for (k, most) in largest.into_iter().enumerate() {
+                    let halves = _mm_max_epi32(
+                        _mm256_castsi256_si128(most),
+                        _mm256_extracti128_si256::<1>(most),
+                    );
+                    _mm_storeu_si128(target.cast::<__m128i>().add(k), halves);
+                }
             }
-        }
-        if !whole {
-            acc.copy_from_slice(&lanes[..acc.len()]);
-        }
+        });
     }
 }
 
