@@ -58,35 +58,24 @@ impl Epilogue {
         // One loop per case, each a straight line the compiler vectorises inside the
         // instruction set's function (three passes over the outputs cost about 16
         // instructions an output; callgrind, host AVX2, int8 CNN forward).
+        match (self.output, self.relu) {
+            (None, false) => self.each(sums, out, |y| y),
+            (None, true) => self.each(sums, out, |y| y.max(0.0)),
+            (Some(grid), false) => self.each(sums, out, |y| grid.snap(y)),
+            (Some(grid), true) => self.each(sums, out, |y| grid.snap(y).max(0.0)),
+        }
+    }
+
+    /// `out[o] = finish((sums[o] - offset) x scale + bias)`, one loop.
+    #[inline(always)]
+    fn each(&self, sums: &[i32], out: &mut [f32], finish: impl Fn(f32) -> f32) {
         let terms = sums
             .iter()
             .zip(&self.offsets)
             .zip(self.scales.iter().zip(&self.bias));
-        // Exact: the lowering caps the inputs so that both terms stay below 2^30.
-        let value = |((&sum, &offset), (&scale, &bias)): ((&i32, &i32), (&f32, &f32))| {
-            (sum - offset) as f32 * scale + bias
-        };
-        match (self.output, self.relu) {
-            (None, false) => {
-                for (y, term) in out.iter_mut().zip(terms) {
-                    *y = value(term);
-                }
-            }
-            (None, true) => {
-                for (y, term) in out.iter_mut().zip(terms) {
-                    *y = value(term).max(0.0);
-                }
-            }
-            (Some(grid), false) => {
-                for (y, term) in out.iter_mut().zip(terms) {
-                    *y = grid.snap(value(term));
-                }
-            }
-            (Some(grid), true) => {
-                for (y, term) in out.iter_mut().zip(terms) {
-                    *y = grid.snap(value(term)).max(0.0);
-                }
-            }
+        for (y, ((&sum, &offset), (&scale, &bias))) in out.iter_mut().zip(terms) {
+            // Exact: the lowering caps the inputs so that both terms stay below 2^30.
+            *y = finish((sum - offset) as f32 * scale + bias);
         }
     }
 }

@@ -191,6 +191,7 @@ impl QuadPanels {
 /// cells of `outputs` sums, `x` holds each cell's rows in turn, the same number for each
 /// (one call for a row of max-pool cells or of pixels: the checks and the set-up once).
 pub(crate) fn largest_portable(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+    assert!(!weights.pairs, "int8 weights laid out for AVX2's pairs");
     let (cells, rows) = weights.cells_in(x, acc);
     let (width, row) = (weights.width, weights.padded_inputs());
     let cell_rows = x
@@ -645,24 +646,12 @@ impl Int8Kernel {
         }
     }
 
-    /// Whether `weights` are laid out as [`Self::lay_out`] lays them out.
-    fn fits(self, weights: &QuadPanels) -> bool {
-        match self.0 {
-            Kind::Avx2 if weights.outputs > 16 => weights.width == 32 && !weights.pairs,
-            Kind::Avx2 => weights.pairs,
-            _ => weights.width == 16 && !weights.pairs,
-        }
-    }
-
-    /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers, `x` holding whole rows of
-    /// [`QuadPanels::padded_inputs`] bytes one after the other; `weights` laid out for this
-    /// kernel ([`Self::lay_out`]). One row is a plain product.
+    /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers for each cell of `acc`,
+    /// `x` holding each cell's whole rows of [`QuadPanels::padded_inputs`] bytes one after
+    /// the other ([`largest_portable`]); `weights` laid out for this kernel
+    /// ([`Self::lay_out`]; each kernel checks its layout). One row is a plain product.
     #[inline]
     pub(crate) fn largest(self, x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-        assert!(
-            self.fits(weights),
-            "int8 weights laid out for another kernel"
-        );
         match self.0 {
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; layout checked.
