@@ -130,3 +130,35 @@ def test_a_tiny_dagger_iteration_on_ray_records_and_chooses_as_without_it(tmp_pa
     assert files["serial"][0] == files["ray"][0]
     assert files["serial"][1] == files["ray"][1] and len(files["serial"][1]) == 2
     assert files["serial-loop"] == files["ray-loop"]
+
+
+def test_a_base_that_learned_from_more_data_needs_it_named_and_refuses_any_other(tmp_path, rng):
+    """The memory R-CNN learned from the CNN's DAgger rounds too: its own run keeps them, named
+    with --base-data and checked against the manifest's hashes before anything is recorded."""
+    kept = write_dataset(tmp_path / "round-1", [1000, 1001], 4, rng)
+    other = write_dataset(tmp_path / "round-2", [2000], 4, rng)
+    kept_hash = json.loads((kept / "dataset.json").read_text())["content_hash"]
+    base = tmp_path / "base"
+    base.mkdir()
+    (base / "policy.toml").write_text(
+        'kind = "rcnn"\n[training]\nteacher = "paper"\n'
+        'notes = "Adam lr 0.001; 8 lanes of 600-step windows; epoch fraction 1.0"\n'
+        f'added_datasets = [{{ name = "round-1", hash = "{kept_hash}" }}]\n'
+    )
+    environment = dict(os.environ, DRIBBLE_BIN_DIR=str(tmp_path / "no-binaries"), DRIBBLE_DAGGER_DIR=str(tmp_path / "dagger"),
+                       DRIBBLE_DATA=str(tmp_path / "data"))  # fmt: skip
+    command = [str(REPOSITORY / "scripts" / "dagger"), "--base", str(base), "--tiny", "--iterations", "1", "--episodes", "2"]
+    for extra, message in (
+        ([], "also learned from round-1: name each with --base-data"),
+        (["--base-data", str(kept), "--base-data", str(other)], f"--base-data {other}: not among what"),
+        (["--base-data", str(kept), "--seed-offset", "998"], "--seed-offset K needs K + episodes at most 999"),
+    ):
+        result = subprocess.run(command + extra, env=environment, capture_output=True, text=True, timeout=60)
+        assert result.returncode != 0 and message in result.stderr, (extra, result.stderr[-2000:])
+        assert not (tmp_path / "data" / "dagger").exists(), extra
+    # Named as it should be, the run gets past the checks and stops only at the missing binaries,
+    # recording the first round on the offset seeds with the base's R-CNN recipe.
+    result = subprocess.run(command + ["--base-data", str(kept), "--seed-offset", "500"], env=environment,
+                            capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert result.returncode != 0 and "seeds 1500..1501" in result.stdout, result.stdout[-2000:] + result.stderr[-2000:]
+    assert "no-binaries/dribble" in result.stderr, result.stderr[-2000:]
