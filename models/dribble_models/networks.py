@@ -3,6 +3,10 @@
 Each camera has a branch: conv 5x5 stride 2 padding 2, ReLU, max-pool 2x2, twice (16 then 32
 filters for the top camera, 8 then 16 for the bottom one). The flattened branches make
 32*7*10 + 16*4*5 = 2560 features.
+
+Beyond the paper, the CNN may be narrower (`Filters`): the same layers with fewer filters,
+for the Nao V5's Atom, whose 2 ms tick the paper's widths miss (issue 29: the int8 forward's
+multiply-adds alone cost more instructions than the tick allows there).
 """
 
 from __future__ import annotations
@@ -14,7 +18,35 @@ from torch import nn
 from . import contract
 from .gating import nearest_cluster
 
-FEATURES = 32 * 7 * 10 + 16 * 4 * 5
+class Filters(tuple):
+    """The four convolutions' filter counts: top first and second, bottom first and second."""
+
+    def __new__(cls, top_first: int, top_second: int, bottom_first: int, bottom_second: int) -> "Filters":
+        counts = (top_first, top_second, bottom_first, bottom_second)
+        if any(int(c) != c or c < 1 for c in counts):
+            raise ValueError(f"filter counts are positive integers, not {counts}")
+        return super().__new__(cls, tuple(int(c) for c in counts))
+
+    @classmethod
+    def parse(cls, text: str) -> "Filters":
+        """`16,32,8,16` (top first, top second, bottom first, bottom second)."""
+        try:
+            return cls(*(int(part) for part in text.split(",")))
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"filters are four counts such as 16,32,8,16, not {text!r} ({error})") from None
+
+    @property
+    def features(self) -> int:
+        """The flattened branches' length: top second * 7 * 10 + bottom second * 4 * 5."""
+        return self[1] * 7 * 10 + self[3] * 4 * 5
+
+    def text(self) -> str:
+        return ",".join(str(c) for c in self)
+
+
+#: The paper's widths.
+PAPER_FILTERS = Filters(16, 32, 8, 16)
+FEATURES = PAPER_FILTERS.features
 
 
 def camera_branch(first: int, second: int) -> nn.Sequential:
@@ -32,10 +64,11 @@ def camera_branch(first: int, second: int) -> nn.Sequential:
 class CameraFeatures(nn.Module):
     """Both camera branches, flattened and concatenated: [B,1,120,160], [B,1,60,80] -> [B,2560]."""
 
-    def __init__(self) -> None:
+    def __init__(self, filters: Filters = PAPER_FILTERS) -> None:
         super().__init__()
-        self.top = camera_branch(16, 32)
-        self.bottom = camera_branch(8, 16)
+        self.filters = filters
+        self.top = camera_branch(filters[0], filters[1])
+        self.bottom = camera_branch(filters[2], filters[3])
 
     def forward(self, top: torch.Tensor, bottom: torch.Tensor) -> torch.Tensor:
         return torch.cat([self.top(top), self.bottom(bottom)], dim=1)
@@ -44,10 +77,10 @@ class CameraFeatures(nn.Module):
 class CNN(nn.Module):
     """Features, dense 128 ReLU, dense 3: (top, bottom) -> command [B,3]."""
 
-    def __init__(self) -> None:
+    def __init__(self, filters: Filters = PAPER_FILTERS) -> None:
         super().__init__()
-        self.features = CameraFeatures()
-        self.head = nn.Sequential(nn.Linear(FEATURES, 128), nn.ReLU(), nn.Linear(128, 3))
+        self.features = CameraFeatures(filters)
+        self.head = nn.Sequential(nn.Linear(filters.features, 128), nn.ReLU(), nn.Linear(128, 3))
 
     def forward(self, top: torch.Tensor, bottom: torch.Tensor) -> torch.Tensor:
         return self.head(self.features(top, bottom))
@@ -65,11 +98,11 @@ class ModalCNN(nn.Module):
     Exported as a CNN: the choice (the hypothesis with the largest logit; the mean of tied
     ones) is part of the graph, so the controller runs it unchanged as `kind = "cnn"`."""
 
-    def __init__(self, modes: int = 2) -> None:
+    def __init__(self, modes: int = 2, filters: Filters = PAPER_FILTERS) -> None:
         super().__init__()
         self.modes = modes
-        self.features = CameraFeatures()
-        self.trunk = nn.Sequential(nn.Linear(FEATURES, 128), nn.ReLU())
+        self.features = CameraFeatures(filters)
+        self.trunk = nn.Sequential(nn.Linear(filters.features, 128), nn.ReLU())
         self.hypotheses = nn.Linear(128, 3 * modes)
         self.choice = nn.Linear(128, modes)
 

@@ -152,11 +152,13 @@ def failure_analysis(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-#: The rows of the committed table, in order: the paper's setup, then what goes beyond it;
-#: last the shipped model's int8 twin (the robot package's policy; its selection run is in
+#: The rows of the committed table, in order: the paper's setup, then what goes beyond it
+#: (the narrow CNN: the paper's layers with fewer filters, for the V5's tick); last the
+#: shipped model's int8 twin (the robot package's policy; its selection run is in
 #: models/selection, so it is no candidate for the shipped row).
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
-        "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable", "dagger-observable",
+        "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable",
+        "cnn-narrow-observable", "dagger-observable", "dagger-rcnn-memory-observable",
         "dagger-observable-int8")
 
 

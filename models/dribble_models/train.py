@@ -51,7 +51,7 @@ from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
-from .networks import CNN, FEATURES, HCNN, RCNN, ModalCNN
+from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, Filters, ModalCNN
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_shipped_weights, network_of
 from .stalls import CutReport, StallRule, cut_all
 
@@ -353,7 +353,7 @@ class Training:
         self.augment = Augment() if args.augment else None
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
         if self.kind == "cnn":
-            self.model = CNN() if args.modes == 1 else ModalCNN(args.modes)
+            self.model = CNN(args.filters) if args.modes == 1 else ModalCNN(args.modes, args.filters)
         elif self.kind == "rcnn":
             self.model = RCNN()
         else:
@@ -393,6 +393,9 @@ class Training:
                 f"--init-from {path} is a {state['identity']['kind']} with {state['identity'].get('modes', 1)} command "
                 f"hypotheses; this run trains a {self.kind} with {self.args.modes}"
             )
+        filters = state["identity"].get("filters", PAPER_FILTERS.text())
+        if filters != self.args.filters.text():
+            raise DatasetError(f"--init-from {path} has the filters {filters}; this run trains {self.args.filters.text()}")
         if state["centroids"] is not None:
             # The H-CNN keeps the gate it was trained with.
             self.model = HCNN(state["centroids"])
@@ -419,6 +422,7 @@ class Training:
             "clusters": a.clusters,
             # Only where it differs from the paper's one output, so that older checkpoints resume.
             **({"modes": a.modes} if a.modes != 1 else {}),
+            **({"filters": a.filters.text()} if a.filters != PAPER_FILTERS else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
             **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
@@ -632,6 +636,9 @@ def notes_of(args: argparse.Namespace) -> str:
     ]
     if args.modes != 1:
         parts.append(f"{args.modes} command hypotheses, winner-takes-all with a learned choice")
+    if args.filters != PAPER_FILTERS:
+        f = args.filters
+        parts.append(f"filters {f.text()} (top {f[0]} then {f[1]}, bottom {f[2]} then {f[3]}; the paper's {PAPER_FILTERS.text()})")
     if args.kind == "hcnn":
         parts.append(f"K {args.clusters} (k-means on {args.kmeans_rows} sampled rows)")
     parts.append("augmented" if args.augment else "no augmentation")
@@ -675,6 +682,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--lanes", type=int, default=4, help="R-CNN: episodes trained side by side")
     parser.add_argument("--clusters", type=int, default=contract.DEFAULT_CLUSTERS, help="H-CNN: K")
     parser.add_argument("--kmeans-rows", type=int, default=20000, help="H-CNN: rows sampled for k-means")
+    parser.add_argument("--filters", type=Filters.parse, default=PAPER_FILTERS, help="CNN: the four convolutions' filter counts, top first, top second, bottom first, bottom second (beyond the paper; default its 16,32,8,16; fewer for the Nao V5's tick)")
     parser.add_argument("--modes", type=int, default=1, help="CNN: command hypotheses with a learned choice among them (beyond the paper; 1 is the paper's CNN)")
     parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
@@ -690,6 +698,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--cut-stalls is a positive number of seconds")
     if args.modes < 1 or (args.modes > 1 and args.kind != "cnn"):
         parser.error("--modes is 1, or more for --kind cnn only")
+    if args.filters != PAPER_FILTERS and args.kind != "cnn":
+        parser.error("--filters other than the paper's are for --kind cnn only")
     if args.features_from is not None and args.kind != "rcnn":
         parser.error("--features-from starts an R-CNN's convolutions (--kind rcnn)")
     if args.freeze_features and args.features_from is None:

@@ -12,7 +12,7 @@ from dribble_models import contract
 from dribble_models.export import export_cnn, export_policy, export_rcnn_step
 from dribble_models.fixtures import synthetic_pairs
 from dribble_models.manifest import TrainingRecord, load
-from dribble_models.networks import CNN, FEATURES, HCNN, RCNN, to_network_input
+from dribble_models.networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, Filters, ModalCNN, to_network_input
 
 TOLERANCE = 1e-5
 RECORD = TrainingRecord(dataset="test", epochs=0)
@@ -27,8 +27,23 @@ def test_flattened_features_are_2560():
     assert CNN().features(top, bottom).shape == (1, 2560) == (1, FEATURES)
 
 
-def test_cnn_onnx_matches_pytorch(tmp_path, rng):
-    model = CNN().eval()
+def test_a_narrow_cnn_has_the_paper_layers_with_fewer_filters():
+    narrow = Filters.parse("8,16,4,8")
+    assert PAPER_FILTERS.features == FEATURES and narrow.features == 16 * 7 * 10 + 8 * 4 * 5 == 1280
+    top, bottom = to_network_input(np.zeros((2, 120, 160), np.uint8), np.zeros((2, 60, 80), np.uint8))
+    for model in (CNN(narrow), ModalCNN(2, narrow)):
+        assert model.features(top, bottom).shape == (2, 1280)
+        convolutions = [m for m in model.modules() if isinstance(m, torch.nn.Conv2d)]
+        assert [c.out_channels for c in convolutions] == [8, 16, 4, 8]
+        assert [c.kernel_size for c in convolutions] == [(5, 5)] * 4 and [c.stride for c in convolutions] == [(2, 2)] * 4
+    for text in ("8,16,4", "8,16,4,x", "8,16,0,8", "8,16,4,8,1"):
+        with pytest.raises(ValueError, match="four counts|positive"):
+            Filters.parse(text)
+
+
+@pytest.mark.parametrize("filters", [PAPER_FILTERS, Filters(8, 16, 4, 8)], ids=["paper", "narrow"])
+def test_cnn_onnx_matches_pytorch(tmp_path, rng, filters):
+    model = CNN(filters).eval()
     path = export_cnn(model, tmp_path / "cnn.onnx")
     tops, bottoms = synthetic_pairs(rng, 8)
     runtime = session(path)

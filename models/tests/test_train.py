@@ -111,7 +111,7 @@ def run_score(policy: Path, data: Path, tmp_path: Path, *extra: str) -> subproce
     )
 
 
-@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn", "cnn --modes 2"])
+@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn", "cnn --modes 2", "cnn --filters 8,16,4,8"])
 def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2, 3], 24, rng)
     test = write_dataset(tmp_path / "test", [10000], 24, rng)
@@ -151,6 +151,22 @@ def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path,
     manifest = (out / "policy.toml").read_text()
     assert main(argv) == 0
     assert (out / "policy.toml").read_text() == manifest
+
+
+def test_a_narrow_cnn_says_so_and_is_never_mixed_with_the_papers_widths(tmp_path, rng, capsys):
+    train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    narrow = tmp_path / "narrow"
+    assert main([*common, "--filters", "8,16,4,8", "--out", str(narrow), "--checkpoint-dir", str(tmp_path / "c1")]) == 0
+    assert "filters 8,16,4,8 (top 8 then 16, bottom 4 then 8; the paper's 16,32,8,16)" in (narrow / "policy.toml").read_text()
+    # A start of other widths is refused, from a checkpoint or from the shipped weights.
+    for start, reason in ((tmp_path / "c1" / "cnn.pt", "has the filters 8,16,4,8; this run trains 16,32,8,16"),
+                          (narrow, "features.top.0.weight is float32 [8, 1, 5, 5], the network's is float32 [16, 1, 5, 5]")):
+        capsys.readouterr()
+        assert main([*common, "--out", str(tmp_path / "paper"), "--init-from", str(start), "--checkpoint-dir", str(tmp_path / "c2")]) == 2
+        assert reason in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--kind", "rcnn", "--dataset", str(train), "--out", str(tmp_path / "r"), "--filters", "8,16,4,8"])
 
 
 def test_data_the_model_was_not_trained_on_is_refused_where_it_must_be(tmp_path, rng):
