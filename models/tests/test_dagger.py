@@ -142,7 +142,8 @@ def test_a_base_that_learned_from_more_data_needs_it_named_and_refuses_any_other
     base.mkdir()
     (base / "policy.toml").write_text(
         'kind = "rcnn"\n[training]\nteacher = "paper"\n'
-        'notes = "Adam lr 0.001; 8 lanes of 600-step windows; epoch fraction 1.0"\n'
+        'notes = "Adam lr 0.001; 8 lanes of 600-step windows; epoch fraction 1.0; filters 8,16,4,8 (top 8 then 16, '
+        'bottom 4 then 8; the paper\'s 16,32,8,16)"\n'
         f'added_datasets = [{{ name = "round-1", hash = "{kept_hash}" }}]\n'
     )
     environment = dict(os.environ, DRIBBLE_BIN_DIR=str(tmp_path / "no-binaries"), DRIBBLE_DAGGER_DIR=str(tmp_path / "dagger"),
@@ -161,4 +162,5 @@ def test_a_base_that_learned_from_more_data_needs_it_named_and_refuses_any_other
     result = subprocess.run(command + ["--base-data", str(kept), "--seed-offset", "500"], env=environment,
                             capture_output=True, text=True, timeout=60)  # fmt: skip
     assert result.returncode != 0 and "seeds 1500..1501" in result.stdout, result.stdout[-2000:] + result.stderr[-2000:]
+    assert "its recipe: --epoch-fraction 1.0 --lanes 8 --window 600 --filters 8,16,4,8" in result.stdout, result.stdout[-2000:]
     assert "no-binaries/dribble" in result.stderr, result.stderr[-2000:]
