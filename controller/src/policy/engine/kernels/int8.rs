@@ -24,7 +24,8 @@
 //! after the other by [`Window::gather_cells`], so the pool's maximum is taken in vector
 //! registers and the call, its checks and the set-up are paid once per row of outputs. On
 //! AVX2, layers of at most 16 outputs are laid out in [`QuadPanels::pairs`] and computed two
-//! rows at a time, one per 128-bit half.
+//! rows at a time, one per 128-bit half; on SSSE3 (both Naos), layers of at most 8 outputs in
+//! panels of 8 ([`largest_ssse3_8`]), not half-empty panels of 16.
 //!
 //! History, measured with callgrind (cross/README.md): one call per pixel with the window
 //! read in place (a segment per kernel row) and one quad per broadcast cost 8.07 M
@@ -62,7 +63,8 @@ struct WeightBlock([i8; 64]);
 
 /// Int8 weights `[panel][quad][width][4]`; inputs are taken in whole groups of sixteen, the
 /// last one padded with zero weights, and outputs in panels of `width`, the last padded with
-/// zero columns. Every quad of a panel of 16 or 32 starts on a 64-byte boundary.
+/// zero columns. Every quad of a panel of 16 or 32 starts on a 64-byte boundary (of 8, on a
+/// 32-byte one; every panel on a 64-byte one).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(crate) struct QuadPanels {
     blocks: Vec<WeightBlock>,
@@ -335,6 +337,78 @@ macro_rules! row_asm {
     };
 }
 
+/// [`row_asm`] for a panel of 8 outputs in two registers: per quad `pshufd`, then for each of
+/// the two weight vectors `pmaddubsw` (aligned memory operand), `pmaddwd` with ones, `paddd`
+/// (the spread is made twice, as `pmaddubsw` overwrites it): 32 instructions a group where a
+/// 16-wide panel of an 8-output layer would spend 64 on half zero weights. The narrow CNN's
+/// first top layer and both bottom layers have at most 8 outputs (issue 29).
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+macro_rules! row8_asm {
+    ($bytes:expr, $vectors:expr, $groups:expr, $ones:expr, [$s0:ident, $s1:ident]) => {
+        // Inside the caller's `unsafe` block, whose contract gives: `$groups * 16` bytes at
+        // `$bytes`, `$groups * 8` vectors at `$vectors` (aligned). Reads only those, writes
+        // only the named registers and the flags; no stack. Nothing runs for 0 groups.
+        if $groups > 0 {
+            core::arch::asm!(
+            "2:",
+            "movdqu {xs}, xmmword ptr [{x}]",
+            "pxor {t}, {t}",
+            "pcmpeqb {t}, {xs}",
+            "pmovmskb {mask:e}, {t}",
+            "cmp {mask:e}, 0xffff",
+            "je 3f",
+            "pshufd {t}, {xs}, 0x00",
+            "pmaddubsw {t}, xmmword ptr [{w} + 0]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            "pshufd {t}, {xs}, 0x00",
+            "pmaddubsw {t}, xmmword ptr [{w} + 16]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            "pshufd {t}, {xs}, 0x55",
+            "pmaddubsw {t}, xmmword ptr [{w} + 32]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            "pshufd {t}, {xs}, 0x55",
+            "pmaddubsw {t}, xmmword ptr [{w} + 48]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            "pshufd {t}, {xs}, 0xaa",
+            "pmaddubsw {t}, xmmword ptr [{w} + 64]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            "pshufd {t}, {xs}, 0xaa",
+            "pmaddubsw {t}, xmmword ptr [{w} + 80]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            "pshufd {t}, {xs}, 0xff",
+            "pmaddubsw {t}, xmmword ptr [{w} + 96]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s0}, {t}",
+            "pshufd {t}, {xs}, 0xff",
+            "pmaddubsw {t}, xmmword ptr [{w} + 112]",
+            "pmaddwd {t}, {ones}",
+            "paddd {s1}, {t}",
+            "3:",
+            "add {x}, 16",
+            "add {w}, 128",
+            "dec {n}",
+            "jnz 2b",
+            x = inout(reg) $bytes => _,
+            w = inout(reg) $vectors => _,
+            n = inout(reg) $groups => _,
+            mask = out(reg) _,
+            xs = out(xmm_reg) _,
+            t = out(xmm_reg) _,
+            ones = in(xmm_reg) $ones,
+            s0 = inout(xmm_reg) $s0,
+            s1 = inout(xmm_reg) $s1,
+            options(readonly, nostack),
+            )
+        }
+    };
+}
+
 /// The larger of two vectors of four `i32`, with SSE2 only (`pmaxsd` is SSE4.1, which the
 /// V5's Atom lacks).
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
@@ -417,6 +491,53 @@ pub(crate) unsafe fn largest_ssse3(x: &[u8], weights: &QuadPanels, acc: &mut [i3
             }
             write_sums::<16>(out, |target| {
                 // SAFETY: four stores of four lanes into the 16 `i32` at `target`.
+                unsafe {
+                    for (k, most) in largest.into_iter().enumerate() {
+                        _mm_storeu_si128(target.cast::<__m128i>().add(k), most);
+                    }
+                }
+            });
+        }
+    }
+}
+
+/// [`largest_ssse3`] for layers of at most 8 outputs: one panel of 8 in two registers
+/// ([`row8_asm`]).
+///
+/// # Safety
+/// The CPU must have SSSE3; `weights.width()` must be 8.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[target_feature(enable = "ssse3")]
+pub(crate) unsafe fn largest_ssse3_8(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+    assert!(weights.width == 8 && !weights.pairs);
+    let (cells, rows) = weights.cells_in(x, acc);
+    let row = weights.padded_inputs();
+    let ones = _mm_set1_epi16(1);
+    let groups = row / GROUP;
+    let cell_rows = x
+        .chunks_exact(rows * row)
+        .zip(acc.chunks_mut(weights.outputs));
+    for (x, acc) in cell_rows.take(cells) {
+        for (panel, out) in acc.chunks_mut(8).enumerate() {
+            let w = weights.panel(panel);
+            assert!(w.as_ptr().cast::<WeightBlock>().is_aligned());
+            // A group's weights: four quads of 32 bytes, 8 vectors.
+            assert_eq!(w.len(), groups * GROUP * 8);
+            let panel_vectors = w.as_ptr().cast::<__m128i>();
+            let mut largest = [_mm_set1_epi32(i32::MIN); 2];
+            for inputs in x.chunks_exact(row).take(rows) {
+                let (mut s0, mut s1) = (_mm_setzero_si128(), _mm_setzero_si128());
+                // SAFETY: `inputs` is a whole row of `groups * GROUP` bytes and the panel
+                // holds `groups` groups' 8 aligned vectors (asserted above).
+                unsafe {
+                    row8_asm!(inputs.as_ptr(), panel_vectors, groups, ones, [s0, s1]);
+                }
+                for (most, sums) in largest.iter_mut().zip([s0, s1]) {
+                    *most = max_epi32_sse2(*most, sums);
+                }
+            }
+            write_sums::<8>(out, |target| {
+                // SAFETY: two stores of four lanes into the 8 `i32` at `target`.
                 unsafe {
                     for (k, most) in largest.into_iter().enumerate() {
                         _mm_storeu_si128(target.cast::<__m128i>().add(k), most);
@@ -632,7 +753,8 @@ impl Int8Kernel {
 
     /// `rows`, `[out][in]`, laid out for this kernel: panels of 16 outputs, or on AVX2
     /// panels of 32 where the layer has more than 16 outputs and [`QuadPanels::pairs`]
-    /// where it has at most 16 (a 32-wide panel of a 16-output layer would be half zeros).
+    /// where it has at most 16 (a 32-wide panel of a 16-output layer would be half zeros),
+    /// and on SSSE3 one panel of 8 where it has at most 8.
     pub(crate) fn lay_out(
         self,
         rows: &[i8],
@@ -642,6 +764,7 @@ impl Int8Kernel {
         match self.0 {
             Kind::Avx2 if outputs > 16 => QuadPanels::new(rows, outputs, inputs, 32),
             Kind::Avx2 => QuadPanels::pairs(rows, outputs, inputs),
+            Kind::Ssse3 if outputs <= 8 => QuadPanels::new(rows, outputs, inputs, 8),
             _ => QuadPanels::new(rows, outputs, inputs, 16),
         }
     }
@@ -655,6 +778,9 @@ impl Int8Kernel {
         match self.0 {
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; layout checked.
+            Kind::Ssse3 if weights.width == 8 => unsafe { largest_ssse3_8(x, weights, acc) },
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: as above; 16 wide.
             Kind::Ssse3 => unsafe { largest_ssse3(x, weights, acc) },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; layout checked.
@@ -966,6 +1092,12 @@ mod tests {
                 // SAFETY: SSSE3 detected; width 16.
                 unsafe { largest_ssse3(&padded, &weights, &mut acc) };
                 results.push(("ssse3", acc));
+                // Panels of 8, as for layers of at most 8 outputs (wider ones in pieces).
+                let weights = QuadPanels::new(rows, outputs, inputs, 8).expect("in range");
+                let mut acc = vec![0; outputs];
+                // SAFETY: SSSE3 detected; width 8.
+                unsafe { largest_ssse3_8(&padded, &weights, &mut acc) };
+                results.push(("ssse3, panels of 8", acc));
             }
             if std::arch::is_x86_feature_detected!("avx2") {
                 let weights = QuadPanels::new(rows, outputs, inputs, 32).expect("in range");
@@ -1093,7 +1225,7 @@ mod tests {
         // A row of max-pool cells (or of pixels) goes to the kernel in one call: each cell's
         // outputs must be those of the cell alone, for every layout and row count.
         let mut rng = Lcg(41);
-        for (outputs, inputs) in [(16, 32), (8, 25), (32, 400), (37, 13)] {
+        for (outputs, inputs) in [(16, 32), (8, 25), (4, 25), (32, 400), (37, 13)] {
             let rows: Vec<i8> = (0..outputs * inputs)
                 .map(|_| ((rng.next() % 129) as i16 - 64) as i8)
                 .collect();
