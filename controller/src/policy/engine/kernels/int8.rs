@@ -451,53 +451,20 @@ fn write_sums<const N: usize>(out: &mut [i32], store: impl FnOnce(*mut i32)) {
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "ssse3")]
 pub(crate) unsafe fn largest_ssse3(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-    assert!(weights.width == 16 && !weights.pairs);
-    let (cells, rows) = weights.cells_in(x, acc);
-    let row = weights.padded_inputs();
     let ones = _mm_set1_epi16(1);
-    let groups = row / GROUP;
-    let cell_rows = x
-        .chunks_exact(rows * row)
-        .zip(acc.chunks_mut(weights.outputs));
-    for (x, acc) in cell_rows.take(cells) {
-        for (panel, out) in acc.chunks_mut(16).enumerate() {
-            let w = weights.panel(panel);
-            assert!(w.as_ptr().cast::<WeightBlock>().is_aligned());
-            // A group's weights: four quads of 64 bytes, 16 vectors.
-            assert_eq!(w.len(), groups * GROUP * 16);
-            let panel_vectors = w.as_ptr().cast::<__m128i>();
-            let mut largest = [_mm_set1_epi32(i32::MIN); 4];
-            for inputs in x.chunks_exact(row).take(rows) {
-                let (mut s0, mut s1, mut s2, mut s3) = (
-                    _mm_setzero_si128(),
-                    _mm_setzero_si128(),
-                    _mm_setzero_si128(),
-                    _mm_setzero_si128(),
-                );
-                // SAFETY: `inputs` is a whole row of `groups * GROUP` bytes and the panel
-                // holds `groups` groups' 16 aligned vectors (asserted above).
-                unsafe {
-                    row_asm!(
-                        inputs.as_ptr(),
-                        panel_vectors,
-                        groups,
-                        ones,
-                        [s0, s1, s2, s3]
-                    );
-                }
-                for (most, sums) in largest.iter_mut().zip([s0, s1, s2, s3]) {
-                    *most = max_epi32_sse2(*most, sums);
-                }
-            }
-            write_sums::<16>(out, |target| {
-                // SAFETY: four stores of four lanes into the 16 `i32` at `target`.
-                unsafe {
-                    for (k, most) in largest.into_iter().enumerate() {
-                        _mm_storeu_si128(target.cast::<__m128i>().add(k), most);
-                    }
-                }
-            });
-        }
+    // SAFETY: the row loop reads one whole row of `groups` groups and the panel's `groups`
+    // groups of 16 aligned vectors, which `ssse3_panels` hands it.
+    unsafe {
+        ssse3_panels::<16, 4>(x, weights, acc, |inputs, vectors, groups| {
+            let (mut s0, mut s1, mut s2, mut s3) = (
+                _mm_setzero_si128(),
+                _mm_setzero_si128(),
+                _mm_setzero_si128(),
+                _mm_setzero_si128(),
+            );
+            row_asm!(inputs, vectors, groups, ones, [s0, s1, s2, s3]);
+            [s0, s1, s2, s3]
+        });
     }
 }
 
@@ -509,35 +476,58 @@ pub(crate) unsafe fn largest_ssse3(x: &[u8], weights: &QuadPanels, acc: &mut [i3
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "ssse3")]
 pub(crate) unsafe fn largest_ssse3_8(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
-    assert!(weights.width == 8 && !weights.pairs);
+    let ones = _mm_set1_epi16(1);
+    // SAFETY: as in `largest_ssse3`, with groups of 8 vectors.
+    unsafe {
+        ssse3_panels::<8, 2>(x, weights, acc, |inputs, vectors, groups| {
+            let (mut s0, mut s1) = (_mm_setzero_si128(), _mm_setzero_si128());
+            row8_asm!(inputs, vectors, groups, ones, [s0, s1]);
+            [s0, s1]
+        });
+    }
+}
+
+/// The cell, panel and row loops of the SSSE3 kernels: for each cell of `acc` and each panel
+/// of `N` outputs (`R = N / 4` registers), `row_sums(inputs, vectors, groups)` sums one row of
+/// the cell's inputs against the panel's weights (its loop in assembly), and each output keeps
+/// its largest sum over the cell's rows (`max_epi32_sse2`, once per row).
+///
+/// # Safety
+/// `row_sums` may read `groups * GROUP` bytes at `inputs` and `groups * N` aligned vectors at
+/// `vectors`, and no more; this function checks the layout (`N` wide, aligned, whole groups)
+/// and hands it only such rows and panels.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[inline(always)]
+unsafe fn ssse3_panels<const N: usize, const R: usize>(
+    x: &[u8],
+    weights: &QuadPanels,
+    acc: &mut [i32],
+    row_sums: impl Fn(*const u8, *const __m128i, usize) -> [__m128i; R],
+) {
+    assert!(weights.width == N && R * 4 == N && !weights.pairs);
     let (cells, rows) = weights.cells_in(x, acc);
     let row = weights.padded_inputs();
-    let ones = _mm_set1_epi16(1);
     let groups = row / GROUP;
     let cell_rows = x
         .chunks_exact(rows * row)
         .zip(acc.chunks_mut(weights.outputs));
     for (x, acc) in cell_rows.take(cells) {
-        for (panel, out) in acc.chunks_mut(8).enumerate() {
+        for (panel, out) in acc.chunks_mut(N).enumerate() {
             let w = weights.panel(panel);
             assert!(w.as_ptr().cast::<WeightBlock>().is_aligned());
-            // A group's weights: four quads of 32 bytes, 8 vectors.
-            assert_eq!(w.len(), groups * GROUP * 8);
+            // A group's weights: four quads of `4 N` bytes, `N` vectors.
+            assert_eq!(w.len(), groups * GROUP * N);
             let panel_vectors = w.as_ptr().cast::<__m128i>();
-            let mut largest = [_mm_set1_epi32(i32::MIN); 2];
+            // SAFETY: SSE2 is part of every x86 target this crate builds for (i686, x86-64).
+            let mut largest = [unsafe { _mm_set1_epi32(i32::MIN) }; R];
             for inputs in x.chunks_exact(row).take(rows) {
-                let (mut s0, mut s1) = (_mm_setzero_si128(), _mm_setzero_si128());
-                // SAFETY: `inputs` is a whole row of `groups * GROUP` bytes and the panel
-                // holds `groups` groups' 8 aligned vectors (asserted above).
-                unsafe {
-                    row8_asm!(inputs.as_ptr(), panel_vectors, groups, ones, [s0, s1]);
-                }
-                for (most, sums) in largest.iter_mut().zip([s0, s1]) {
+                let sums = row_sums(inputs.as_ptr(), panel_vectors, groups);
+                for (most, sums) in largest.iter_mut().zip(sums) {
                     *most = max_epi32_sse2(*most, sums);
                 }
             }
-            write_sums::<8>(out, |target| {
-                // SAFETY: two stores of four lanes into the 8 `i32` at `target`.
+            write_sums::<N>(out, |target| {
+                // SAFETY: `R` stores of four lanes into the `N` `i32` at `target`.
                 unsafe {
                     for (k, most) in largest.into_iter().enumerate() {
                         _mm_storeu_si128(target.cast::<__m128i>().add(k), most);
