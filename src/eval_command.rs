@@ -7,7 +7,7 @@
 //! in a thread over channels. The scripted expert reads ground truth, so it always runs
 //! inside the simulator.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
@@ -24,6 +24,7 @@ use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, run_episode_obse
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
 use crate::eval_jobs::{JobPlan, play};
+use crate::eval_journal::{EvalJournal, KeptEpisode, RunSettings};
 use crate::foxglove_episodes::FoxgloveArgs;
 use crate::trajectory_file::write_trajectories;
 use crate::trajectory_plot::{plot_trajectories, title};
@@ -59,6 +60,17 @@ pub struct EvalArgs {
     /// are merged in seed order and the outcomes are a serial run's. About one job per core.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
     jobs: u16,
+    /// Continue a run that was cut off (a session's end, a killed job): keep the episodes
+    /// its journal `TRAJECTORIES.partial` holds for the same settings (policy files, teacher,
+    /// time limit, engine, instruction set, transport) and play only the rest; the files come
+    /// out as an uninterrupted run's. Needs --trajectories. Every run with --trajectories
+    /// keeps that journal while it runs (with --jobs, in `TRAJECTORIES.jobs/`).
+    #[arg(long, requires = "trajectories")]
+    resume: bool,
+    /// Set by a parent run for its --jobs children: keep the journal when done (the parent
+    /// removes it with its other scratch files once the merged file is written).
+    #[arg(long, hide = true)]
+    keep_journal: bool,
     #[command(flatten)]
     controller: ControllerOptions,
     #[command(flatten)]
@@ -73,54 +85,105 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let policy_path = (args.driver != "expert").then(|| PathBuf::from(&args.driver));
     describe_driver(args, policy_path.as_deref())?;
     let seeds = args.episodes.0.clone();
-    let played = if args.jobs > 1 && seeds.end - seeds.start > 1 {
-        anyhow::ensure!(
-            args.foxglove.live.is_none(),
-            "--live serves one run: leave out --jobs"
-        );
-        let arguments: Vec<String> = std::env::args()
-            .skip_while(|argument| argument != "eval")
-            .skip(1)
-            .collect();
-        let domain = args
-            .controller
-            .domain
-            .clone()
-            .or_else(|| std::env::var("DRIBBLE_DOMAIN").ok())
-            .unwrap_or_else(|| format!("dribble-eval-{}", std::process::id()));
-        let scratch =
-            std::env::temp_dir().join(format!("dribble-eval-jobs-{}", std::process::id()));
-        let plan = JobPlan {
-            seeds,
-            jobs: usize::from(args.jobs),
-            arguments: &arguments,
-            domain,
-            controller_log: &args.controller.controller_log,
-            scratch: scratch.clone(),
-        };
-        let (results, engine) = play(&plan)?;
-        let _ = std::fs::remove_dir_all(&scratch);
-        println!();
-        print_header();
-        for result in &results {
-            print_row(result);
+    if args.jobs > 1 && seeds.end - seeds.start > 1 {
+        return run_in_jobs(args, seeds, policy_path.is_some());
+    }
+    let mut journal = match &args.trajectories {
+        Some(path) => {
+            let settings = run_settings(args, policy_path.as_deref())?;
+            Some(EvalJournal::start(path, &settings, &seeds, args.resume)?)
         }
-        Played {
-            results,
-            engine,
-            latency: None,
-        }
-    } else {
-        play_here(args, &config, policy_path.as_deref())?
+        None => None,
     };
-    report(args, policy_path.is_some(), &played)
+    let played = play_here(
+        args,
+        &config,
+        policy_path.as_deref(),
+        journal
+            .as_mut()
+            .map(|(journal, kept)| (journal, std::mem::take(kept))),
+    )?;
+    report(args, policy_path.is_some(), &played)?;
+    if let Some((journal, _)) = journal
+        && !args.keep_journal
+    {
+        journal.finish()?;
+    }
+    Ok(())
+}
+
+/// `--jobs N`: children play the shards, their files are merged here.
+fn run_in_jobs(args: &EvalArgs, seeds: std::ops::Range<u64>, policy: bool) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.foxglove.live.is_none(),
+        "--live serves one run: leave out --jobs"
+    );
+    let arguments: Vec<String> = std::env::args()
+        .skip_while(|argument| argument != "eval")
+        .skip(1)
+        .collect();
+    let domain = args
+        .controller
+        .domain
+        .clone()
+        .or_else(|| std::env::var("DRIBBLE_DOMAIN").ok())
+        .unwrap_or_else(|| format!("dribble-eval-{}", std::process::id()));
+    // Beside the trajectories file when there is one, so that a cut run's jobs resume.
+    let scratch = match &args.trajectories {
+        Some(path) => {
+            let mut name = path.as_os_str().to_owned();
+            name.push(".jobs");
+            PathBuf::from(name)
+        }
+        None => std::env::temp_dir().join(format!("dribble-eval-jobs-{}", std::process::id())),
+    };
+    let plan = JobPlan {
+        seeds,
+        jobs: usize::from(args.jobs),
+        arguments: &arguments,
+        domain,
+        controller_log: &args.controller.controller_log,
+        scratch: scratch.clone(),
+    };
+    let (results, engine) = play(&plan)?;
+    println!();
+    print_header();
+    for result in &results {
+        print_row(result);
+    }
+    let played = Played {
+        results,
+        engine,
+        latency: None,
+    };
+    report(args, policy, &played)?;
+    // The children's files and journals, once the merged file is written.
+    let _ = std::fs::remove_dir_all(&scratch);
+    Ok(())
+}
+
+/// What decides this run's episodes besides their seeds (a journal of other settings is not
+/// resumed from).
+fn run_settings(args: &EvalArgs, policy_path: Option<&Path>) -> anyhow::Result<RunSettings> {
+    Ok(RunSettings {
+        driver: match policy_path {
+            Some(path) => RunSettings::policy_hash(path)?,
+            None => "expert".to_owned(),
+        },
+        teacher: args.expert.name().to_owned(),
+        time_limit_s: args.time_limit,
+        engine: format!("{:?}", args.controller.engine),
+        isa: format!("{:?}", args.controller.isa),
+        transport: format!("{:?}", args.controller.transport),
+    })
 }
 
 /// What a run played: every episode, the engine that ran the policy, the controller's latency.
 struct Played {
     results: Vec<EpisodeResult>,
     engine: Option<String>,
-    /// Not known for a run in jobs (each child prints its own).
+    /// Not known for a run in jobs (each child prints its own); of the played episodes only
+    /// in a resumed run.
     latency: Option<TickStats>,
 }
 
@@ -172,11 +235,29 @@ pub(crate) fn print_row(result: &EpisodeResult) {
 }
 
 /// Plays every episode in this process, one after the other.
+/// Plays the episodes of `args` in this process; with a journal, the episodes it kept from
+/// a cut run are taken as they are and every played one is appended to it.
 fn play_here(
     args: &EvalArgs,
     config: &EpisodeConfig,
-    policy_path: Option<&std::path::Path>,
+    policy_path: Option<&Path>,
+    journal: Option<(&mut EvalJournal, Vec<KeptEpisode>)>,
 ) -> anyhow::Result<Played> {
+    let (mut journal, kept) = match journal {
+        Some((journal, kept)) => (Some(journal), kept),
+        None => (None, Vec::new()),
+    };
+    let mut kept_engines: Vec<Option<String>> = kept.iter().map(|(_, e)| e.clone()).collect();
+    kept_engines.dedup();
+    anyhow::ensure!(
+        kept_engines.len() <= 1,
+        "the journal's episodes name different engines: {kept_engines:?}"
+    );
+    let kept_engine = kept_engines.pop();
+    let mut kept: std::collections::BTreeMap<u64, EpisodeResult> = kept
+        .into_iter()
+        .map(|(result, _)| (result.setup.seed, result))
+        .collect();
     let mut renderer = if policy_path.is_some() || args.render {
         let renderer = Renderer::new(
             &FieldGeometry::SPL,
@@ -199,6 +280,11 @@ fn play_here(
     }
     let mut foxglove = args.foxglove.observer(renderer.is_some())?;
     for seed in args.episodes.0.clone() {
+        if let Some(result) = kept.remove(&seed) {
+            print_row(&result);
+            results.push(result);
+            continue;
+        }
         let setup = EpisodeSetup::from_seed(seed);
         let mut no_observer = NoObserver;
         let observer: &mut dyn EpisodeObserver = match foxglove.as_mut() {
@@ -238,6 +324,9 @@ fn play_here(
             return Err(failure.context(format!("episode {seed}: writing it for Foxglove")));
         }
         print_row(&result);
+        if let Some(journal) = journal.as_mut() {
+            journal.append(&result, engine.as_deref())?;
+        }
         if result.failure.is_some() {
             // A new controller for the next episode (a running one we did not start is
             // looked for again).
@@ -256,6 +345,14 @@ fn play_here(
             dir.display()
         );
     }
+    let engine = match (kept_engine, engine) {
+        (Some(theirs), Some(ours)) if theirs.as_ref() != Some(&ours) => anyhow::bail!(
+            "the episodes kept from the journal ran on {theirs:?}, this run on {ours}: \
+             remove the journal to play them all again"
+        ),
+        (Some(theirs), None) => theirs,
+        (_, ours) => ours,
+    };
     Ok(Played {
         results,
         engine,

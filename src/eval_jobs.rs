@@ -4,6 +4,10 @@
 //! serial run writes. Every episode starts from its seed and the controller forgets its state
 //! between episodes, so the outcomes are a serial run's (`tests/cli_episodes.rs` checks it).
 //!
+//! With `--trajectories FILE` the children's files and journals are kept in `FILE.jobs/`
+//! until the merged file is written, so that `--resume` (passed on to each child) continues a
+//! cut run's shards where they stopped ([`crate::eval_journal`]).
+//!
 //! Children rather than threads: the controller process, the renderer and the iceoryx2 node
 //! are per process already, and a child that fails takes only its own episodes with it.
 
@@ -136,6 +140,7 @@ pub fn play(plan: &JobPlan<'_>) -> anyhow::Result<(Vec<EpisodeResult>, Option<St
             .arg(&trajectories)
             .arg("--controller-log")
             .arg(&controller_log)
+            .arg("--keep-journal")
             .stdin(Stdio::null())
             .stdout(output.try_clone()?)
             .stderr(output)

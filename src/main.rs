@@ -5,6 +5,7 @@ mod controller_session;
 mod episodes;
 mod eval_command;
 mod eval_jobs;
+mod eval_journal;
 mod foxglove_episodes;
 mod goal_rate;
 mod gym_server_command;

@@ -47,27 +47,76 @@ pub fn write_trajectories(
     engine: Option<&str>,
     path: &Path,
 ) -> anyhow::Result<()> {
-    let points = |path: &[Vec2]| path.iter().map(|p| [p.x.into(), p.y.into()]).collect();
     let recorded = RecordedEvaluation {
         engine: engine.map(str::to_owned),
-        episodes: results
-            .iter()
-            .map(|r| RecordedEpisode {
-                ball: points(&r.ball_path),
-                computed_commands: r.computed_commands,
-                duration_s: r.duration_s.into(),
-                failure: r.failure.clone(),
-                first_sighting_s: r.first_sighting_s.map(f64::from),
-                heading: r.heading_path.iter().map(|&h| h.into()).collect(),
-                outcome: r.outcome,
-                robot: points(&r.robot_path),
-                seed: r.setup.seed,
-                walked_m: Some(r.distance_walked_m.into()),
-            })
-            .collect(),
+        episodes: results.iter().map(recorded_episode).collect(),
     };
     let text = serde_json::to_string(&recorded)?;
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// One episode and the engine that ran it as one line of JSON (no newline): what
+/// [`crate::eval_journal`] appends as each episode ends. It keeps what the trajectories file
+/// keeps, exactly, so that a file written from lines read back is the one an uninterrupted
+/// run writes.
+pub fn episode_line(result: &EpisodeResult, engine: Option<&str>) -> anyhow::Result<String> {
+    Ok(serde_json::to_string(&JournalLine {
+        engine: engine.map(str::to_owned),
+        episode: recorded_episode(result),
+    })?)
+}
+
+/// An [`episode_line`] read back: the episode and its engine.
+pub fn parse_episode_line(line: &str) -> anyhow::Result<(EpisodeResult, Option<String>)> {
+    let line: JournalLine = serde_json::from_str(line)?;
+    Ok((episode_result(line.episode), line.engine))
+}
+
+#[derive(Debug, Deserialize, Serialize)]
+struct JournalLine {
+    engine: Option<String>,
+    episode: RecordedEpisode,
+}
+
+fn recorded_episode(result: &EpisodeResult) -> RecordedEpisode {
+    let points = |path: &[Vec2]| path.iter().map(|p| [p.x.into(), p.y.into()]).collect();
+    RecordedEpisode {
+        ball: points(&result.ball_path),
+        computed_commands: result.computed_commands,
+        duration_s: result.duration_s.into(),
+        failure: result.failure.clone(),
+        first_sighting_s: result.first_sighting_s.map(f64::from),
+        heading: result.heading_path.iter().map(|&h| h.into()).collect(),
+        outcome: result.outcome,
+        robot: points(&result.robot_path),
+        seed: result.setup.seed,
+        walked_m: Some(result.distance_walked_m.into()),
+    }
+}
+
+/// What the file does not keep, the tick times (and the distance walked in older files), is
+/// left empty; the start is the seed's.
+fn episode_result(episode: RecordedEpisode) -> EpisodeResult {
+    let points = |points: &[[f64; 2]]| {
+        points
+            .iter()
+            .map(|&[x, y]| Vec2::new(x as f32, y as f32))
+            .collect()
+    };
+    EpisodeResult {
+        setup: EpisodeSetup::from_seed(episode.seed),
+        outcome: episode.outcome,
+        duration_s: episode.duration_s as f32,
+        distance_walked_m: episode.walked_m.unwrap_or(0.0) as f32,
+        robot_path: points(&episode.robot),
+        ball_path: points(&episode.ball),
+        heading_path: episode.heading.iter().map(|&h| h as f32).collect(),
+        first_sighting_s: episode.first_sighting_s.map(|s| s as f32),
+        computed_commands: episode.computed_commands,
+        tick_times: TickStats::new(std::time::Duration::from_millis(10)),
+        failure: episode.failure,
+        expert_executed: 0,
+    }
 }
 
 /// The episodes of a trajectories file, as results to plot; each episode's start is its
@@ -92,37 +141,13 @@ pub fn read_trajectories_engine(path: &Path) -> anyhow::Result<Option<String>> {
     Ok(recorded.engine)
 }
 
-/// What the file does not keep, the tick times (and the distance walked in older files),
-/// is left empty.
+/// Every episode of the file, in its order ([`episode_result`]).
 fn parse_trajectories(text: &str) -> anyhow::Result<Vec<EpisodeResult>> {
     let recorded: RecordedEvaluation = serde_json::from_str(text)?;
     if recorded.episodes.is_empty() {
         bail!("it holds no episodes");
     }
-    let points = |points: &[[f64; 2]]| {
-        points
-            .iter()
-            .map(|&[x, y]| Vec2::new(x as f32, y as f32))
-            .collect()
-    };
-    Ok(recorded
-        .episodes
-        .into_iter()
-        .map(|episode| EpisodeResult {
-            setup: EpisodeSetup::from_seed(episode.seed),
-            outcome: episode.outcome,
-            duration_s: episode.duration_s as f32,
-            distance_walked_m: episode.walked_m.unwrap_or(0.0) as f32,
-            robot_path: points(&episode.robot),
-            ball_path: points(&episode.ball),
-            heading_path: episode.heading.iter().map(|&h| h as f32).collect(),
-            first_sighting_s: episode.first_sighting_s.map(|s| s as f32),
-            computed_commands: episode.computed_commands,
-            tick_times: TickStats::new(std::time::Duration::from_millis(10)),
-            failure: episode.failure,
-            expert_executed: 0,
-        })
-        .collect())
+    Ok(recorded.episodes.into_iter().map(episode_result).collect())
 }
 
 #[cfg(test)]

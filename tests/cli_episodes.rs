@@ -245,6 +245,85 @@ fn a_killed_recording_resumes_to_the_same_dataset() {
 }
 
 #[test]
+fn a_killed_evaluation_resumes_to_the_same_trajectories() {
+    use std::time::{Duration, Instant};
+    let dir = scratch("eval-killed");
+    fs::create_dir_all(&dir).expect("scratch");
+    let args = |name: &str, resume: bool| -> Vec<String> {
+        let mut args: Vec<String> = [
+            "eval",
+            "--episodes",
+            "10003..10006",
+            "--time-limit",
+            "40",
+            "--trajectories",
+            path(&dir.join(format!("{name}.json"))),
+            "--plot",
+            path(&dir.join(format!("{name}.png"))),
+        ]
+        .map(String::from)
+        .to_vec();
+        if resume {
+            args.push("--resume".to_owned());
+        }
+        args
+    };
+    let journal = dir.join("killed.json.partial");
+    let lines = || fs::read_to_string(&journal).map_or(0, |text| text.lines().count());
+    // SIGKILL once the journal holds its settings and the first episode.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dribble"))
+        .args(args("killed", false))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("eval starts");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while lines() < 2 {
+        assert!(Instant::now() < deadline, "no episode in the journal");
+        assert!(
+            child.try_wait().expect("poll").is_none(),
+            "eval ended early"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().expect("kill");
+    child.wait().expect("reaped");
+    let kept = lines() - 1;
+    assert!(!dir.join("killed.json").exists(), "cut before the end");
+    // A kill while a line was written leaves it torn.
+    let mut torn = fs::read(&journal).expect("journal");
+    torn.extend_from_slice(b"{\"engine\": null, \"epis");
+    fs::write(&journal, torn).expect("tear");
+
+    let play = |args: Vec<String>| dribble(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let resumed = play(args("killed", true));
+    let log = text(&resumed);
+    assert!(resumed.status.success(), "{log}");
+    assert!(
+        log.contains(&format!("resume: {kept} episode(s) kept")),
+        "{log}"
+    );
+    assert!(log.contains("a torn line"), "{log}");
+    assert!(!journal.exists(), "the journal stays after the run: {log}");
+    let whole = play(args("whole", false));
+    assert!(whole.status.success(), "{}", text(&whole));
+    assert!(
+        fs::read(dir.join("killed.json")).expect("resumed file")
+            == fs::read(dir.join("whole.json")).expect("whole file"),
+        "a resumed run's trajectories differ from an uninterrupted run's"
+    );
+    let rows = |log: &str| -> Vec<String> {
+        log.lines()
+            .filter(|line| line.trim_start().starts_with("1000"))
+            .map(str::to_owned)
+            .collect()
+    };
+    assert_eq!(rows(&log), rows(&text(&whole)));
+    assert_eq!(rows(&log).len(), 3, "{log}");
+    fs::remove_dir_all(dir).expect("clean up");
+}
+
+#[test]
 fn eval_with_the_expert_counts_goals_and_plots() {
     let plot = scratch("eval-plot").with_extension("png");
     let output = dribble(&["eval", "--episodes", "10003..10004", "--plot", path(&plot)]);
@@ -347,10 +426,22 @@ fn episodes_in_parallel_jobs_end_as_in_one_serial_run() {
             path(&trajectories),
             "--controller-log",
             path(&out.join("controller.log")),
+            // Nothing to resume from: every episode is played (and the journals go).
+            "--resume",
         ]);
         let log = text(&output);
         assert!(output.status.success(), "{log}");
         assert!(out.join("plot.png").is_file(), "{log}");
+        let leftovers: Vec<_> = fs::read_dir(&out)
+            .expect("dir")
+            .filter_map(Result::ok)
+            .map(|entry| entry.file_name())
+            .filter(|name| name.to_string_lossy().contains(".json."))
+            .collect();
+        assert!(
+            leftovers.is_empty(),
+            "journals or job files left: {leftovers:?}"
+        );
         let file: serde_json::Value =
             serde_json::from_str(&fs::read_to_string(&trajectories).expect("trajectories"))
                 .expect("json");
