@@ -48,8 +48,10 @@ pub struct EvalArgs {
     /// Render the cameras even for the expert (slower; it does not look at them).
     #[arg(long)]
     render: bool,
-    /// Which teacher `--driver expert` is: `paper` (reads the ball's true position) or
-    /// `observable` (knows the ball only while a camera shows it, and where it last saw it).
+    /// Which teacher `--driver expert` is: `paper` (reads the ball's true position),
+    /// `observable` (knows the ball only while a camera shows it, and where it last saw it) or
+    /// `orbit` (the observable one, which also walks straight to the ball and circles it to the
+    /// left until the top camera shows the target goal).
     #[arg(long, default_value_t = Teacher::Paper)]
     expert: Teacher,
     /// Time limit per episode, simulated seconds (positive and finite).
@@ -193,6 +195,9 @@ fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> an
             Teacher::Paper => println!("driver: the paper's expert (ground truth)"),
             Teacher::Observable => println!(
                 "driver: the observable teacher (the ball only through its cameras, its own pose from ground truth)"
+            ),
+            Teacher::Orbit => println!(
+                "driver: the orbiting teacher (the observable one, and the goal's direction only while the top camera shows the goal)"
             ),
         },
         Some(path) => {

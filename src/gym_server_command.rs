@@ -54,7 +54,8 @@ use serde_json::json;
 #[derive(Debug, Args)]
 pub struct GymServerArgs {
     /// The teacher whose command for each observed state goes into `info`: `paper` (reads
-    /// the ball's true position) or `observable` (only what its cameras showed).
+    /// the ball's true position), `observable` (only what its cameras showed) or `orbit`
+    /// (observable, and the goal's direction only while the top camera shows the goal).
     #[arg(long, default_value_t = Teacher::Paper)]
     expert: Teacher,
     /// Time limit per episode, simulated seconds (positive and finite); the environment

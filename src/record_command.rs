@@ -57,7 +57,9 @@ pub struct RecordArgs {
     /// Which teacher drives (with `--driver expert`) or labels (with `--label-with
     /// expert`): `paper`, the paper's expert, which reads the ball's true position; or
     /// `observable`, which knows the ball only while a camera shows it and where it last
-    /// saw it (DESIGN.md, "Teachers"). Recorded in dataset.json.
+    /// saw it (DESIGN.md, "Teachers"); or `orbit`, the observable one that also walks straight
+    /// to the ball and circles it to the left until the top camera shows the target goal.
+    /// Recorded in dataset.json.
     #[arg(long, default_value_t = Teacher::Paper)]
     expert: Teacher,
     #[command(flatten)]

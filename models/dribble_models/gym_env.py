@@ -29,7 +29,7 @@ Harada and Russell 1999, which leaves the best policy unchanged).
 ``info`` holds the ground truth the policy does not see: ``time_s``, ``robot`` (x, y,
 heading), ``ball``, ``target_side``, ``goal_centre``, ``seed``, and the teacher's command
 and phase for that state (``expert_command``, ``expert_phase``; the teacher is
-``expert="paper"`` or ``"observable"``, asked exactly where DAgger's labels are). The last
+``expert="paper"``, ``"observable"`` or ``"orbit"``, asked exactly where DAgger's labels are). The last
 step's ``info`` adds the ``outcome``, ``duration_s``, ``walked_m``, ``computed_commands``,
 ``first_sighting_s`` and the 10 Hz ``trajectory`` that ``dribble eval --trajectories``
 writes.
@@ -89,8 +89,8 @@ class NaoDribbleEnv(gym.Env):
         shaping: float = 0.0,
         binary: str | None = None,
     ):
-        if expert not in ("paper", "observable"):
-            raise ValueError(f"expert is 'paper' or 'observable', not {expert!r}")
+        if expert not in ("paper", "observable", "orbit"):
+            raise ValueError(f"expert is 'paper', 'observable' or 'orbit', not {expert!r}")
         if not (time_limit_s > 0 and np.isfinite(time_limit_s)):
             raise ValueError(f"time_limit_s must be positive and finite, not {time_limit_s}")
         self.observation_space = spaces.Dict(

@@ -173,7 +173,7 @@ def main(argv=None) -> int:
     parser.add_argument("--policy", default="models/policy/dagger-observable/policy.toml")
     parser.add_argument("--teacher", action="store_true",
                         help="drive with the teacher's command from info instead of the policy")
-    parser.add_argument("--expert", default="paper", choices=["paper", "observable"])
+    parser.add_argument("--expert", default="paper", choices=["paper", "observable", "orbit"])
     parser.add_argument("--episodes", type=seed_range, default=seed_range("10000..10003"),
                         help="seed range START..END (END excluded)")
     parser.add_argument("--time-limit", type=float, default=90.0)

@@ -153,12 +153,14 @@ def failure_analysis(rows: list[dict]) -> str:
 
 
 #: The rows of the committed table, in order: the paper's setup, then what goes beyond it
-#: (the narrow CNN: the paper's layers with fewer filters, for the V5's tick); last the
+#: (the narrow CNN: the paper's layers with fewer filters, for the V5's tick; the orbiting
+#: teacher's CNN and its DAgger); last the
 #: shipped model's int8 twin (the robot package's policy; its selection run is in
 #: models/selection, so it is no candidate for the shipped row).
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
         "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable",
         "cnn-narrow-observable", "dagger-observable", "dagger-rcnn-memory-observable",
+        "cnn-orbit", "dagger-orbit",
         "dagger-observable-int8")
 
 

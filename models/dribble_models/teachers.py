@@ -1,4 +1,4 @@
-"""The two teachers side by side (DESIGN.md, "Teachers"): goals with their Wilson 95 %
+"""The teachers side by side (DESIGN.md, "Teachers"): goals with their Wilson 95 %
 intervals and median time to goal on the paper's 20 test seeds and on 100 fresh test seeds
 (30000..30099), read from the summaries `scripts/teachers` leaves in models/teachers/.
 
@@ -14,7 +14,7 @@ import statistics
 import sys
 from pathlib import Path
 
-TEACHERS = ("paper", "observable")
+TEACHERS = ("paper", "observable", "orbit")
 SETS = (("test", "20 test seeds 10000..10019"), ("fresh", "100 fresh seeds 30000..30099"))
 
 

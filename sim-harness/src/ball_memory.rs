@@ -10,12 +10,14 @@
 //! first sighting, to the left ([`BallMemory::FIRST_SEARCH_TURN`]): a choice the images
 //! explain, where the paper's expert turned toward a ball it knew from ground truth.
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 
 use crate::camera_geometry::CameraGeometry;
+use crate::camera_model::CameraModel;
 use crate::field::FieldGeometry;
 use crate::pose::FieldPose;
 use crate::visibility::Visibility;
+use crate::walk::HeadSway;
 
 /// What the teacher believes about the ball at one decision.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -86,6 +88,20 @@ impl BallMemory {
         BallBelief::Search {
             turn: self.last_side.unwrap_or(Self::FIRST_SEARCH_TURN),
         }
+    }
+
+    /// Whether the middle of the target goal's mouth (half the posts' height) is in the top
+    /// camera's image from `robot`: what the orbiting teacher needs to see before it turns
+    /// toward the goal. The middle, not a post: close to the goal a post at the image's edge
+    /// lies far off the goal's direction, and turning toward the goal would lose it again.
+    pub fn target_goal_in_view(&self, robot: FieldPose, target_side: f32) -> bool {
+        let top = CameraModel::new(&self.cameras.top, robot, HeadSway::default());
+        let middle = Vec3::new(
+            target_side * self.field.length / 2.0,
+            0.0,
+            self.field.goal_height / 2.0,
+        );
+        top.project(middle).is_some_and(|p| top.contains(p))
     }
 
     fn remember(&mut self, robot: FieldPose, ball: Vec2, time_s: f64) {

@@ -4,12 +4,17 @@
 //! on its wrong side), align (circle the ball until facing the goal), dribble (walk through
 //! the ball toward the goal, correcting sideways).
 //!
-//! Two teachers play it (DESIGN.md, "Teachers"; [`Teacher`]): the paper's reads the ball's
+//! Three teachers play it (DESIGN.md, "Teachers"; [`Teacher`]): the paper's reads the ball's
 //! true position always, and so searches by turning toward a ball no image shows; the
 //! observable one knows the ball only through its cameras ([`BallMemory`]), remembers where
 //! it last saw it, and searches to the side it last saw it on, or to the left before the
-//! first sighting. Both take their own pose from ground truth, standing in for
-//! self-localisation as in the paper.
+//! first sighting. The orbiting one is the observable one that also leaves the goal's
+//! direction out of its approach and alignment while no camera shows the target goal: it
+//! walks straight to the ball, circles it to the left until the middle of the goal's mouth is
+//! in the top image, then turns toward it ([`ORBIT_TURN`]). All take their own pose from ground truth,
+//! standing in for self-localisation as in the paper; which goal is the target (the one on
+//! the ball's half) stays ground truth for all three, as a symmetric field's images cannot
+//! tell the two goals apart.
 
 use core::f32::consts::PI;
 
@@ -29,15 +34,19 @@ pub enum Teacher {
     Paper,
     /// Only what the cameras show, and where the ball was last seen.
     Observable,
+    /// The observable teacher, and the goal's direction only while the top camera shows the
+    /// target goal: straight to the ball, then around it to the left until the goal is seen.
+    Orbit,
 }
 
 impl Teacher {
-    pub const ALL: [Self; 2] = [Self::Paper, Self::Observable];
+    pub const ALL: [Self; 3] = [Self::Paper, Self::Observable, Self::Orbit];
 
     pub fn name(self) -> &'static str {
         match self {
             Self::Paper => "paper",
             Self::Observable => "observable",
+            Self::Orbit => "orbit",
         }
     }
 }
@@ -55,7 +64,7 @@ impl std::str::FromStr for Teacher {
         Self::ALL
             .into_iter()
             .find(|teacher| teacher.name() == text)
-            .ok_or_else(|| format!("unknown teacher {text:?}: paper or observable"))
+            .ok_or_else(|| format!("unknown teacher {text:?}: paper, observable or orbit"))
     }
 }
 
@@ -127,14 +136,20 @@ pub struct GroundTruth {
     pub time_s: f64,
 }
 
+/// How the orbiting teacher turns while it circles the ball without the goal in view
+/// (normalised turn; positive is left): always the same way, so that the images explain it.
+pub const ORBIT_TURN: f32 = 1.0;
+
 /// The striker.
 #[derive(Clone, Debug)]
 pub struct Expert {
     config: ExpertConfig,
     field: FieldGeometry,
     phase: Phase,
-    /// The observable teacher's knowledge of the ball; `None` for the paper's.
+    /// The observable teachers' knowledge of the ball; `None` for the paper's.
     memory: Option<BallMemory>,
+    /// The orbiting teacher: the goal's direction only while the top camera shows the goal.
+    orbit: bool,
 }
 
 impl Expert {
@@ -145,6 +160,7 @@ impl Expert {
             field,
             phase: Phase::Search,
             memory: None,
+            orbit: false,
         }
     }
 
@@ -156,16 +172,18 @@ impl Expert {
         cameras: CameraGeometry,
     ) -> Self {
         let mut expert = Self::new(config, field);
-        if teacher == Teacher::Observable {
+        if teacher != Teacher::Paper {
             expert.memory = Some(BallMemory::new(cameras, field));
         }
+        expert.orbit = teacher == Teacher::Orbit;
         expert
     }
 
     pub fn teacher(&self) -> Teacher {
-        match self.memory {
-            None => Teacher::Paper,
-            Some(_) => Teacher::Observable,
+        match (&self.memory, self.orbit) {
+            (None, _) => Teacher::Paper,
+            (Some(_), false) => Teacher::Observable,
+            (Some(_), true) => Teacher::Orbit,
         }
     }
 
@@ -206,16 +224,40 @@ impl Expert {
         let ball_bearing = ball.y.atan2(ball.x);
         let goal = Vec2::new(truth.target_side * self.field.length / 2.0, 0.0);
         let to_goal = (goal - truth.ball).normalize_or(Vec2::X);
-        let behind_ball = truth.ball - to_goal * self.config.approach_distance;
-        let behind = robot.to_robot(behind_ball.extend(0.0)).0.truncate();
         let goal_heading = to_goal.y.atan2(to_goal.x);
         let heading_error = wrap_angle(goal_heading - robot.theta);
+        // The orbiting teacher knows the goal's direction only while its posts are in view.
+        let goal_seen = !self.orbit
+            || self
+                .memory
+                .as_ref()
+                .is_some_and(|memory| memory.target_goal_in_view(robot, truth.target_side));
+        // Where it walks to: behind the ball on the ball-to-goal line, or (orbiting) the
+        // point at the approach distance on its own side of the ball.
+        let stand_off = if self.orbit {
+            (truth.ball - Vec2::new(robot.x, robot.y)).normalize_or(Vec2::X)
+        } else {
+            to_goal
+        };
+        let behind_ball = truth.ball - stand_off * self.config.approach_distance;
+        let behind = robot.to_robot(behind_ball.extend(0.0)).0.truncate();
 
         self.phase = self.next_phase(ball, ball_bearing, behind, heading_error);
         let command = match self.phase {
             Phase::Search => search(ball_bearing),
+            Phase::Approach if self.orbit => {
+                let local = robot.to_robot(behind_ball.extend(0.0)).0.truncate();
+                walk_towards(local, ball_bearing, 1.0)
+            }
             Phase::Approach => self.approach(truth, ball, behind_ball, to_goal),
-            Phase::Align => self.align(ball, behind, heading_error),
+            Phase::Align => {
+                let turn = if goal_seen {
+                    (heading_error * 1.6).clamp(-1.0, 1.0)
+                } else {
+                    ORBIT_TURN
+                };
+                self.align(ball, behind, turn)
+            }
             Phase::Dribble => self.dribble(truth, ball, goal),
         };
         (command, self.phase)
@@ -283,11 +325,10 @@ impl Expert {
         walk_towards(local, face, 1.0)
     }
 
-    /// Circle the ball: turn toward the goal, step sideways to keep the ball ahead, and keep
-    /// the approach distance.
-    fn align(&self, ball: Vec2, behind: Vec2, heading_error: f32) -> SpeedCommand {
+    /// Circle the ball: turn by `turn` (toward the goal), step sideways to keep the ball
+    /// ahead, and keep the approach distance.
+    fn align(&self, ball: Vec2, behind: Vec2, turn: f32) -> SpeedCommand {
         let distance_error = ball.x - self.config.approach_distance;
-        let turn = (heading_error * 1.6).clamp(-1.0, 1.0);
         let forward = (distance_error * 3.0).clamp(-0.5, 0.5);
         // Sidestep opposite to the turn so that the robot orbits the ball, plus keep it centred.
         let left = (-turn * 0.35 + ball.y * 4.0 + behind.y * 2.0).clamp(-1.0, 1.0);
@@ -363,6 +404,48 @@ mod tests {
         // A ball in view is approached as the paper's expert approaches it.
         let seen = truth(FieldPose::new(0.0, 0.0, 0.0), Vec2::new(2.0, 0.1));
         assert_eq!(expert.decide(&seen), paper.decide(&seen));
+    }
+
+    #[test]
+    fn the_orbiting_teacher_circles_left_until_the_goal_is_in_view_then_turns_to_it() {
+        let orbiting = || {
+            Expert::teaching(
+                Teacher::Orbit,
+                ExpertConfig::default(),
+                FieldGeometry::SPL,
+                CameraGeometry::nao(),
+            )
+        };
+        let settled = |expert: &mut Expert, state: &GroundTruth| {
+            (0..3)
+                .map(|_| expert.decide(state))
+                .last()
+                .expect("decided")
+        };
+        assert_eq!(orbiting().teacher(), Teacher::Orbit);
+        // At the approach distance from the ball, facing it, the goal (at +x) behind.
+        let goal_behind = truth(FieldPose::new(0.28, 0.0, PI), Vec2::ZERO);
+        let (command, phase) = settled(&mut orbiting(), &goal_behind);
+        assert_eq!(phase, Phase::Align);
+        assert_eq!(command.turn(), ORBIT_TURN);
+        // Mirrored, the goal still behind: the same way round, where the observable teacher
+        // (the goal's direction from ground truth) takes the other.
+        let mirrored = truth(FieldPose::new(0.28, 0.0, -PI + 0.4), Vec2::ZERO);
+        let (command, phase) = settled(&mut orbiting(), &mirrored);
+        assert_eq!((phase, command.turn()), (Phase::Align, ORBIT_TURN));
+        // Behind the ball with the goal in view a little to the right: toward it.
+        let goal_ahead = truth(FieldPose::new(-0.28, 0.0, 0.3), Vec2::ZERO);
+        let (command, phase) = settled(&mut orbiting(), &goal_ahead);
+        assert_eq!(phase, Phase::Align);
+        assert!(command.turn() < 0.0, "{command:?}");
+        // Farther away it walks straight at the ball, wherever the goal is.
+        let far = truth(FieldPose::new(-2.0, 1.0, -0.46), Vec2::ZERO);
+        let (command, phase) = settled(&mut orbiting(), &far);
+        assert_eq!(phase, Phase::Approach);
+        assert!(
+            command.forward() > 0.5 && command.turn().abs() < 0.05,
+            "{command:?}"
+        );
     }
 
     #[test]
