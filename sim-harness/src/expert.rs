@@ -137,8 +137,20 @@ pub struct GroundTruth {
 }
 
 /// How the orbiting teacher turns while it circles the ball without the goal in view
-/// (normalised turn; positive is left): always the same way, so that the images explain it.
-pub const ORBIT_TURN: f32 = 1.0;
+/// (normalised turn; positive is left): always the same way, so that the images explain it,
+/// and slowly enough that the walk's sideways speed keeps up ([`orbit_sidestep`]). At the
+/// walk's full turn rate (1 rad/s) the ball would need 0.28 m/s sideways against the walk's
+/// 0.15: the robot turned almost in place, the ball left both images in a fifth of the
+/// orbiting rows, and a CNN cloned from that scored 4 of 20 test goals.
+pub const ORBIT_TURN: f32 = 0.45;
+
+/// The sideways step (normalised, negative is right) that circles a ball at `distance` metres
+/// ahead while turning at [`ORBIT_TURN`]: the turn rate times the distance, over the walk's
+/// top sideways speed.
+pub fn orbit_sidestep(distance: f32) -> f32 {
+    let limits = dribble_controller::WalkLimits::default();
+    -(ORBIT_TURN * limits.max_turn.0 * distance / limits.max_left.0)
+}
 
 /// The striker.
 #[derive(Clone, Debug)]
@@ -250,14 +262,16 @@ impl Expert {
                 walk_towards(local, ball_bearing, 1.0)
             }
             Phase::Approach => self.approach(truth, ball, behind_ball, to_goal),
-            Phase::Align => {
-                let turn = if goal_seen {
-                    (heading_error * 1.6).clamp(-1.0, 1.0)
-                } else {
-                    ORBIT_TURN
-                };
-                self.align(ball, behind, turn)
+            Phase::Align if goal_seen => {
+                let turn = (heading_error * 1.6).clamp(-1.0, 1.0);
+                self.align(ball, behind, turn, -turn * 0.35)
             }
+            Phase::Align => self.align(
+                ball,
+                behind,
+                ORBIT_TURN,
+                orbit_sidestep(self.config.approach_distance),
+            ),
             Phase::Dribble => self.dribble(truth, ball, goal),
         };
         (command, self.phase)
@@ -325,13 +339,13 @@ impl Expert {
         walk_towards(local, face, 1.0)
     }
 
-    /// Circle the ball: turn by `turn` (toward the goal), step sideways to keep the ball
-    /// ahead, and keep the approach distance.
-    fn align(&self, ball: Vec2, behind: Vec2, turn: f32) -> SpeedCommand {
+    /// Circle the ball: turn by `turn` (toward the goal), step sideways by `sidestep`
+    /// (opposite to the turn, so that the robot orbits the ball) plus what keeps the ball
+    /// centred ahead, and keep the approach distance.
+    fn align(&self, ball: Vec2, behind: Vec2, turn: f32, sidestep: f32) -> SpeedCommand {
         let distance_error = ball.x - self.config.approach_distance;
         let forward = (distance_error * 3.0).clamp(-0.5, 0.5);
-        // Sidestep opposite to the turn so that the robot orbits the ball, plus keep it centred.
-        let left = (-turn * 0.35 + ball.y * 4.0 + behind.y * 2.0).clamp(-1.0, 1.0);
+        let left = (sidestep + ball.y * 4.0 + behind.y * 2.0).clamp(-1.0, 1.0);
         command(forward, left, turn)
     }
 
@@ -428,6 +442,13 @@ mod tests {
         let (command, phase) = settled(&mut orbiting(), &goal_behind);
         assert_eq!(phase, Phase::Align);
         assert_eq!(command.turn(), ORBIT_TURN);
+        // Stepping right as fast as the turn needs to keep the ball 0.28 m ahead (0.126 m/s
+        // of the walk's 0.15).
+        assert!(
+            (command.left() - orbit_sidestep(0.28)).abs() < 1e-3,
+            "{command:?}"
+        );
+        assert!((orbit_sidestep(0.28) + 0.84).abs() < 1e-3);
         // Mirrored, the goal still behind: the same way round, where the observable teacher
         // (the goal's direction from ground truth) takes the other.
         let mirrored = truth(FieldPose::new(0.28, 0.0, -PI + 0.4), Vec2::ZERO);
