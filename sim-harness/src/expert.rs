@@ -238,12 +238,6 @@ impl Expert {
         let to_goal = (goal - truth.ball).normalize_or(Vec2::X);
         let goal_heading = to_goal.y.atan2(to_goal.x);
         let heading_error = wrap_angle(goal_heading - robot.theta);
-        // The orbiting teacher knows the goal's direction only while its posts are in view.
-        let goal_seen = !self.orbit
-            || self
-                .memory
-                .as_ref()
-                .is_some_and(|memory| memory.target_goal_in_view(robot, truth.target_side));
         // Where it walks to: behind the ball on the ball-to-goal line, or (orbiting) the
         // point at the approach distance on its own side of the ball.
         let stand_off = if self.orbit {
@@ -257,12 +251,10 @@ impl Expert {
         self.phase = self.next_phase(ball, ball_bearing, behind, heading_error);
         let command = match self.phase {
             Phase::Search => search(ball_bearing),
-            Phase::Approach if self.orbit => {
-                let local = robot.to_robot(behind_ball.extend(0.0)).0.truncate();
-                walk_towards(local, ball_bearing, 1.0)
-            }
+            Phase::Approach if self.orbit => walk_towards(behind, ball_bearing, 1.0),
             Phase::Approach => self.approach(truth, ball, behind_ball, to_goal),
-            Phase::Align if goal_seen => {
+            // The orbiting teacher knows the goal's direction only while the goal is in view.
+            Phase::Align if !self.orbit || self.goal_in_view(truth) => {
                 let turn = (heading_error * 1.6).clamp(-1.0, 1.0);
                 self.align(ball, behind, turn, -turn * 0.35)
             }
@@ -275,6 +267,13 @@ impl Expert {
             Phase::Dribble => self.dribble(truth, ball, goal),
         };
         (command, self.phase)
+    }
+
+    /// Whether the top camera shows the target goal (the orbiting teacher's test).
+    fn goal_in_view(&self, truth: &GroundTruth) -> bool {
+        self.memory
+            .as_ref()
+            .is_some_and(|memory| memory.target_goal_in_view(truth.robot, truth.target_side))
     }
 
     fn next_phase(&self, ball: Vec2, ball_bearing: f32, behind: Vec2, heading_error: f32) -> Phase {
