@@ -24,9 +24,24 @@ static ALLOCATOR: CountingAllocator = CountingAllocator;
 
 const STEPS: usize = 40;
 
+/// The committed two-hypothesis CNN whose manifest has the controller commit to one
+/// hypothesis (`controller/src/policy/commitment.rs`): its state is carried in the policy.
+const COMMITTED: &str = "cnn-modal-committed-observable";
+
+fn manifest(kind: &str) -> std::path::PathBuf {
+    if kind == COMMITTED {
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("models/policy")
+            .join(kind)
+            .join("policy.toml")
+    } else {
+        fixture_manifest(kind)
+    }
+}
+
 fn load(kind: &str, engine: Engine) -> OnnxPolicy {
     let options = EngineOptions { engine, isa: None };
-    OnnxPolicy::load_with(&fixture_manifest(kind), options)
+    OnnxPolicy::load_with(&manifest(kind), options)
         .expect("fixture loads")
         .0
 }
@@ -85,7 +100,7 @@ fn report(kind: &str, engine: Engine) -> u64 {
 #[test]
 fn allocations_per_step_are_steady_and_the_tick_adds_none() {
     support::install_log_subscriber();
-    for kind in ["cnn", "hcnn", "rcnn"] {
+    for kind in ["cnn", "hcnn", "rcnn", COMMITTED] {
         assert_eq!(
             report(kind, Engine::Compiled),
             0,

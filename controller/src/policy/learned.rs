@@ -19,6 +19,7 @@ use std::sync::Arc;
 
 use tract_onnx::prelude::{TValue, Tensor};
 
+use super::commitment::HypothesisCommitment;
 use super::engine::{CompiledNetwork, Isa};
 use super::manifest::{BOTTOM_SHAPE, COMMAND_SHAPE, PolicyKind, PolicyManifest, TOP_SHAPE};
 use super::onnx_network::{Interface, OnnxNetwork, Port, zero_tensor};
@@ -142,6 +143,18 @@ impl ThumbnailTensors {
     }
 }
 
+/// The values of output `port` among a network's outputs.
+fn values_of(outputs: &[(Port, TValue)], port: Port) -> Result<&[f32], PolicyError> {
+    let (_, value) = outputs
+        .iter()
+        .find(|(p, _)| *p == port)
+        .ok_or_else(|| PolicyError::Inference(format!("no {port:?} output")))?;
+    value
+        .try_as_plain_ram()
+        .and_then(|view| view.as_slice::<f32>())
+        .map_err(|error| PolicyError::Inference(format!("{error:#}")))
+}
+
 /// Reads the command from a network's outputs.
 fn command_of(outputs: &[(Port, TValue)]) -> Result<PolicyOutput, PolicyError> {
     let (_, value) = outputs
@@ -182,6 +195,9 @@ struct PortNames {
     command: String,
     /// h_in, c_in, h_out, c_out of a recurrent network.
     recurrent: Option<[String; 4]>,
+    /// A modal CNN's hypothesis count and its commands and logits outputs, when the
+    /// controller commits to one hypothesis.
+    hypotheses: Option<(usize, String, String)>,
 }
 
 /// One network, run by tract or by the compiled engine, with the state it carries.
@@ -213,12 +229,18 @@ impl Network {
             (Port::Top, names.top.as_str(), &TOP_SHAPE[..]),
             (Port::Bottom, names.bottom.as_str(), &BOTTOM_SHAPE[..]),
         ];
+        let count = names.hypotheses.as_ref().map_or(0, |h| h.0);
+        let (commands_shape, logits_shape) = ([1, count, 3], [1, count]);
         let mut outputs = vec![(Port::Command, names.command.as_str(), &COMMAND_SHAPE[..])];
         if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent {
             inputs.push((Port::Hidden, h_in.as_str(), &state_shape[..]));
             inputs.push((Port::Cell, c_in.as_str(), &state_shape[..]));
             outputs.push((Port::Hidden, h_out.as_str(), &state_shape[..]));
             outputs.push((Port::Cell, c_out.as_str(), &state_shape[..]));
+        }
+        if let Some((_, commands, logits)) = &names.hypotheses {
+            outputs.push((Port::Hypotheses, commands.as_str(), &commands_shape[..]));
+            outputs.push((Port::Logits, logits.as_str(), &logits_shape[..]));
         }
         let interface = Interface {
             inputs: &inputs,
@@ -300,7 +322,13 @@ impl Network {
         ))
     }
 
-    fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+    /// One step; with `commitment`, the command is the committed hypothesis's, not the
+    /// graph's own choice.
+    fn step(
+        &mut self,
+        input: PolicyInput<'_>,
+        commitment: Option<&mut HypothesisCommitment>,
+    ) -> Result<PolicyOutput, PolicyError> {
         match self {
             Self::Tract {
                 network,
@@ -316,7 +344,14 @@ impl Network {
                         _ => network_feed(tensors)(port),
                     })?,
                 };
-                let command = command_of(&outputs)?;
+                let mut command = command_of(&outputs)?;
+                if let Some(commitment) = commitment {
+                    let (commands, logits) = (
+                        values_of(&outputs, Port::Hypotheses)?,
+                        values_of(&outputs, Port::Logits)?,
+                    );
+                    command = commitment.choose(commands, logits)?;
+                }
                 if let Some((hidden, cell, _)) = state {
                     for (port, value) in outputs {
                         match port {
@@ -350,7 +385,7 @@ impl Network {
                 if catch_unwind(AssertUnwindSafe(|| network.run())).is_err() {
                     return Err(PolicyError::Engine("the compiled engine panicked"));
                 }
-                let command = match network.output(&names.command) {
+                let mut command = match network.output(&names.command) {
                     Some(&[forward, left, turn]) => PolicyOutput {
                         forward,
                         left,
@@ -360,6 +395,16 @@ impl Network {
                         return Err(PolicyError::Engine("the command output is not 3 values"));
                     }
                 };
+                if let (Some(commitment), Some((_, commands, logits))) =
+                    (commitment, &names.hypotheses)
+                {
+                    let (Some(commands), Some(logits)) =
+                        (network.output(commands), network.output(logits))
+                    else {
+                        return Err(PolicyError::Engine("the hypotheses outputs are missing"));
+                    };
+                    command = commitment.choose(commands, logits)?;
+                }
                 if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent
                     && !(network.carry(h_out, h_in) && network.carry(c_out, c_in))
                 {
@@ -451,6 +496,10 @@ fn engine_agrees_with_tract(
             expected.push((Port::Hidden, h_out.as_str()));
             expected.push((Port::Cell, c_out.as_str()));
         }
+        if let Some((_, commands, logits)) = &names.hypotheses {
+            expected.push((Port::Hypotheses, commands.as_str()));
+            expected.push((Port::Logits, logits.as_str()));
+        }
         let mut tensors = Vec::new();
         for (port, name, shape, values) in &feeds {
             let input = compiled
@@ -527,13 +576,19 @@ fn port_names(manifest: &PolicyManifest) -> PortNames {
                 r.c_out.clone(),
             ]
         }),
+        hypotheses: manifest
+            .hypotheses
+            .as_ref()
+            .map(|h| (h.count, h.commands.clone(), h.logits.clone())),
     }
 }
 
-/// One CNN on both thumbnails.
+/// One CNN on both thumbnails; a modal CNN whose manifest names its hypotheses commits to
+/// one of them ([`HypothesisCommitment`]).
 #[derive(Debug)]
 pub struct CnnPolicy {
     network: Network,
+    commitment: Option<HypothesisCommitment>,
 }
 
 impl CnnPolicy {
@@ -545,16 +600,35 @@ impl CnnPolicy {
         let mut names = port_names(manifest);
         names.recurrent = None;
         let (network, report) = Network::load(manifest, &path, names, options)?;
-        Ok((Self { network }, report))
+        let commitment = manifest
+            .hypotheses
+            .as_ref()
+            .map(|h| HypothesisCommitment::new(h.count, h.switch_margin));
+        Ok((
+            Self {
+                network,
+                commitment,
+            },
+            report,
+        ))
+    }
+
+    /// The commitment to a hypothesis, for a modal CNN whose manifest names them.
+    pub fn commitment(&self) -> Option<&HypothesisCommitment> {
+        self.commitment.as_ref()
     }
 }
 
 impl Policy for CnnPolicy {
     fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
-        self.network.step(input)
+        self.network.step(input, self.commitment.as_mut())
     }
 
-    fn reset(&mut self) {}
+    fn reset(&mut self) {
+        if let Some(commitment) = &mut self.commitment {
+            commitment.reset();
+        }
+    }
 }
 
 /// K CNNs; the centroid nearest to the thumbnails' histogram feature picks one each step.
@@ -573,6 +647,7 @@ impl HcnnPolicy {
     ) -> Result<(Self, EngineReport), PolicyLoadError> {
         let mut names = port_names(manifest);
         names.recurrent = None;
+        names.hypotheses = None;
         let mut networks = Vec::new();
         let mut report = EngineReport {
             compiled: None,
@@ -639,7 +714,7 @@ impl Policy for HcnnPolicy {
         let chosen = nearest_centroid(&feature, &self.centroids);
         self.last_network = Some(chosen);
         self.selections[chosen] += 1;
-        self.networks[chosen].step(input)
+        self.networks[chosen].step(input, None)
     }
 
     fn reset(&mut self) {}
@@ -671,7 +746,7 @@ impl RcnnPolicy {
 
 impl Policy for RcnnPolicy {
     fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
-        self.network.step(input)
+        self.network.step(input, None)
     }
 
     fn reset(&mut self) {

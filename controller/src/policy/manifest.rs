@@ -163,6 +163,26 @@ pub struct Gating {
     pub centroids: Vec<[f32; GATING_FEATURE_LEN]>,
 }
 
+/// The most command hypotheses a manifest may declare (the modal CNNs have 2).
+pub const MAX_HYPOTHESES: usize = 16;
+
+/// A modal CNN's command hypotheses, read by the controller so that it can commit to one
+/// ([`super::commitment`]) instead of taking the graph's choice afresh at every frame.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hypotheses {
+    /// How many command hypotheses the network answers.
+    pub count: usize,
+    /// The output holding every hypothesis's normalised command, `[1, count, 3]`.
+    pub commands: String,
+    /// The output holding one choice logit per hypothesis, `[1, count]`.
+    pub logits: String,
+    /// By how much (in logits) another hypothesis must beat the held one before the
+    /// controller switches to it; 0 takes the largest logit at every frame, as the graph's
+    /// own `command` output does.
+    pub switch_margin: f32,
+}
+
 /// A dataset named by a directory (for people) and its content hash (for checks).
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -225,6 +245,8 @@ pub struct PolicyManifest {
     pub command_scale: CommandScale,
     pub recurrent: Option<Recurrent>,
     pub gating: Option<Gating>,
+    /// A modal CNN's hypotheses, when the controller is to commit to one of them.
+    pub hypotheses: Option<Hypotheses>,
     pub training: TrainingRecord,
     /// The directory the manifest was read from; network paths are relative to it.
     #[serde(skip)]
@@ -302,6 +324,7 @@ impl PolicyManifest {
             }
         }
         self.check_quantization()?;
+        self.check_hypotheses()?;
         let networks = self.networks.len();
         match self.kind {
             PolicyKind::Cnn | PolicyKind::Rcnn if networks != 1 => {
@@ -346,6 +369,39 @@ impl PolicyManifest {
 }
 
 impl PolicyManifest {
+    fn check_hypotheses(&self) -> Result<(), String> {
+        let Some(hypotheses) = &self.hypotheses else {
+            return Ok(());
+        };
+        if self.kind != PolicyKind::Cnn {
+            return Err(format!(
+                "a [hypotheses] table belongs to a CNN, not to an {}",
+                self.kind
+            ));
+        }
+        if !(2..=MAX_HYPOTHESES).contains(&hypotheses.count) {
+            return Err(format!(
+                "hypotheses.count must be from 2 to {MAX_HYPOTHESES}, found {}",
+                hypotheses.count
+            ));
+        }
+        let margin = hypotheses.switch_margin;
+        if !(margin.is_finite() && margin >= 0.0) {
+            return Err(format!(
+                "hypotheses.switch_margin must be finite and not negative, found {margin}"
+            ));
+        }
+        let command = self.outputs.command.name.as_str();
+        let (commands, logits) = (hypotheses.commands.as_str(), hypotheses.logits.as_str());
+        if commands == logits || commands == command || logits == command {
+            return Err(format!(
+                "hypotheses.commands ({commands:?}), hypotheses.logits ({logits:?}) and \
+                 outputs.command ({command:?}) must name three different outputs"
+            ));
+        }
+        Ok(())
+    }
+
     fn check_quantization(&self) -> Result<(), String> {
         let record = match (self.precision, &self.quantization) {
             (Precision::Fp32, None) => return Ok(()),
@@ -553,6 +609,66 @@ activation_scales = { "top" = 0.0039, "/features/Concat_output_0" = 0.0052 }
         let error = parse(&text).expect_err("one centroid for two clusters");
         assert!(
             error.contains("gating.clusters is 2, with 1 centroids and 1 network files"),
+            "{error}"
+        );
+    }
+
+    const HYPOTHESES: &str = r#"
+[hypotheses]
+count = 2
+commands = "hypotheses"
+logits = "logits"
+switch_margin = 1.5
+"#;
+
+    #[test]
+    fn a_cnn_may_name_its_hypotheses_and_a_switch_margin() {
+        let text = CNN.replace("[training]", &format!("{HYPOTHESES}[training]"));
+        let hypotheses = parse(&text).expect("valid").hypotheses.expect("table");
+        assert_eq!(hypotheses.count, 2);
+        assert_eq!(hypotheses.switch_margin, 1.5);
+        assert_eq!(parse(CNN).expect("valid").hypotheses, None);
+
+        let cases = [
+            (
+                "count = 2",
+                "count = 1",
+                "hypotheses.count must be from 2 to 16, found 1",
+            ),
+            ("count = 2", "count = 17", "found 17"),
+            (
+                "switch_margin = 1.5",
+                "switch_margin = -0.5",
+                "must be finite and not negative",
+            ),
+            (
+                "switch_margin = 1.5",
+                "switch_margin = nan",
+                "must be finite and not negative",
+            ),
+            (
+                "logits = \"logits\"",
+                "logits = \"command\"",
+                "three different outputs",
+            ),
+            (
+                "logits = \"logits\"",
+                "logits = \"hypotheses\"",
+                "three different outputs",
+            ),
+        ];
+        for (from, to, expected) in cases {
+            let table = HYPOTHESES.replace(from, to);
+            let error =
+                parse(&CNN.replace("[training]", &format!("{table}[training]"))).expect_err(to);
+            assert!(error.contains(expected), "{to}: {error}");
+        }
+        let rcnn = CNN
+            .replace("\"cnn\"", "\"rcnn\"")
+            .replace("[training]", &format!("{HYPOTHESES}[training]"));
+        let error = parse(&rcnn).expect_err("hypotheses on an R-CNN");
+        assert!(
+            error.contains("belongs to a CNN, not to an R-CNN"),
             "{error}"
         );
     }

@@ -6,6 +6,7 @@
 //! the walk.
 
 mod brightness;
+pub mod commitment;
 pub mod engine;
 pub mod file_watch;
 mod learned;

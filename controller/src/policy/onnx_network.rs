@@ -23,6 +23,10 @@ pub(crate) enum Port {
     Hidden,
     /// LSTM cell state, in or out.
     Cell,
+    /// A modal CNN's command hypotheses, `[1, count, 3]` (out).
+    Hypotheses,
+    /// A modal CNN's choice logits, `[1, count]` (out).
+    Logits,
 }
 
 /// What a network must take and give: names (from the manifest) and shapes (the contract's).
