@@ -138,8 +138,24 @@ pub fn run(args: &ScoreArgs) -> anyhow::Result<()> {
             None => println!("  {:<9} -      (0 rows)", phase.name()),
         }
     }
+    // A committed modal CNN: how often it changed hypotheses (a reset is no change).
+    let switches = match &policy {
+        OnnxPolicy::Cnn(cnn, _) => cnn.commitment().map(|commitment| {
+            println!(
+                "hypothesis switches: {} in {} rows ({:.2} % of the rows; {} hypotheses, switch margin {})",
+                commitment.switches(),
+                overall.rows,
+                100.0 * commitment.switches() as f64 / overall.rows as f64,
+                commitment.count(),
+                commitment.switch_margin()
+            );
+            commitment.switches()
+        }),
+        _ => None,
+    };
     if let Some(path) = &args.json {
         let report = json!({
+            "hypothesis_switches": switches,
             "policy": args.policy,
             "dataset": args.dataset,
             "dataset_hash": hash,

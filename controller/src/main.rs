@@ -255,8 +255,14 @@ fn load_policy(manifest: Option<&Path>, options: EngineOptions) -> anyhow::Resul
 
 fn load_learned_policy(manifest: &Path, options: EngineOptions) -> anyhow::Result<OnnxPolicy> {
     let (policy, manifest) = OnnxPolicy::load_with(manifest, options)?;
+    let commitment = manifest.hypotheses.as_ref().map_or(String::new(), |h| {
+        format!(
+            ", holding one of {} hypotheses by a switch margin of {}",
+            h.count, h.switch_margin
+        )
+    });
     println!(
-        "policy: {} from {} ({} network file(s), {}, trained on {:?}), engine {}",
+        "policy: {} from {} ({} network file(s), {}, trained on {:?}{commitment}), engine {}",
         manifest.kind,
         manifest.directory.display(),
         manifest.networks.len(),

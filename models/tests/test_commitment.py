@@ -1,5 +1,6 @@
 """The committed copy of a modal CNN: its hypotheses and logits as outputs, the same command."""
 
+import json
 import tomllib
 
 import numpy as np
@@ -50,3 +51,31 @@ def test_only_a_modal_cnn_can_be_committed(tmp_path):
     committed = write_committed(tmp_path / "modal", 1.0, tmp_path / "out")
     with pytest.raises(SystemExit, match="without a \\[hypotheses\\] table"):
         write_committed(committed.parent, 1.0, tmp_path / "again")
+
+
+def test_the_robot_scores_a_committed_copy_and_counts_its_switches(tmp_path, rng):
+    """`dribble score` runs the committed copy through the controller's commitment: at margin
+    0 it scores exactly what the modal CNN does, and it reports the switches it made."""
+    from test_train import main as train_main
+    from test_train import run_score, write_dataset
+
+    train = write_dataset(tmp_path / "train", [1, 2], 24, rng)
+    test = write_dataset(tmp_path / "test", [10000], 40, rng)
+    out = tmp_path / "modal"
+    argv = ["--kind", "cnn", "--modes", "2", "--dataset", str(train), "--test-dataset", str(test), "--out", str(out)]
+    argv += ["--epochs", "1", "--validation-episodes", "1", "--batch-size", "16"]
+    argv += ["--checkpoint-dir", str(tmp_path / "checkpoints"), "--threads", "1"]
+    assert train_main(argv) == 0
+
+    def score(policy, name):
+        result = run_score(policy / "policy.toml", test, tmp_path, "--json", str(tmp_path / f"{name}.json"))
+        assert result.returncode == 0, result.stdout + result.stderr
+        return result.stdout, json.loads((tmp_path / f"{name}.json").read_text())
+
+    _, plain = score(out, "plain")
+    assert plain["hypothesis_switches"] is None
+    stdout, zero = score(write_committed(out, 0.0, tmp_path / "zero").parent, "zero")
+    assert zero["error"] == plain["error"] and zero["rows"] == 40
+    assert f"hypothesis switches: {zero['hypothesis_switches']} in 40 rows" in stdout
+    _, held = score(write_committed(out, 1.0e6, tmp_path / "held").parent, "held")
+    assert held["hypothesis_switches"] == 0 <= zero["hypothesis_switches"]

@@ -86,6 +86,16 @@ impl HypothesisCommitment {
         self.held
     }
 
+    /// The margin another hypothesis's logit must beat the held one's by.
+    pub fn switch_margin(&self) -> f32 {
+        self.switch_margin
+    }
+
+    /// How many hypotheses the network answers.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
     /// How often the held hypothesis changed since the policy was loaded.
     pub fn switches(&self) -> u64 {
         self.switches
