@@ -145,10 +145,9 @@ impl ThumbnailTensors {
 
 /// The values of output `port` among a network's outputs.
 fn values_of(outputs: &[(Port, TValue)], port: Port) -> Result<&[f32], PolicyError> {
-    let (_, value) = outputs
-        .iter()
-        .find(|(p, _)| *p == port)
-        .ok_or_else(|| PolicyError::Inference(format!("no {port:?} output")))?;
+    let (_, value) = outputs.iter().find(|(p, _)| *p == port).ok_or_else(|| {
+        PolicyError::Inference(format!("no {} output", format!("{port:?}").to_lowercase()))
+    })?;
     value
         .try_as_plain_ram()
         .and_then(|view| view.as_slice::<f32>())
@@ -157,14 +156,7 @@ fn values_of(outputs: &[(Port, TValue)], port: Port) -> Result<&[f32], PolicyErr
 
 /// Reads the command from a network's outputs.
 fn command_of(outputs: &[(Port, TValue)]) -> Result<PolicyOutput, PolicyError> {
-    let (_, value) = outputs
-        .iter()
-        .find(|(port, _)| *port == Port::Command)
-        .ok_or_else(|| PolicyError::Inference("no command output".into()))?;
-    let values = value
-        .try_as_plain_ram()
-        .and_then(|view| view.as_slice::<f32>())
-        .map_err(|error| PolicyError::Inference(format!("{error:#}")))?;
+    let values = values_of(outputs, Port::Command)?;
     match *values {
         [forward, left, turn] => Ok(PolicyOutput {
             forward,
