@@ -1,5 +1,6 @@
 //! `dribble-controller`: the robot process.
 
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -182,6 +183,26 @@ enum Command {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    let reports_only = !matches!(cli.command, Command::Run { .. });
+    match run_command(cli) {
+        // Rust ignores SIGPIPE, so a reader that has gone (`forward ... | head -1`) is an
+        // error of the write, not a signal; for the commands that only report, it ends the
+        // program quietly, as it would a C tool. The controller itself (`run`) still fails.
+        Err(error) if reports_only && reader_gone(&error) => Ok(()),
+        result => result,
+    }
+}
+
+/// Whether `error` is a write to a pipe whose reader has closed it.
+fn reader_gone(error: &anyhow::Error) -> bool {
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<io::Error>()
+            .is_some_and(|io| io.kind() == io::ErrorKind::BrokenPipe)
+    })
+}
+
+fn run_command(cli: Cli) -> anyhow::Result<()> {
     log_output::install(cli.log_format)?;
     let options = EngineOptions {
         engine: cli.engine,
@@ -247,7 +268,7 @@ fn main() -> anyhow::Result<()> {
 
 fn load_policy(manifest: Option<&Path>, options: EngineOptions) -> anyhow::Result<Box<dyn Policy>> {
     let Some(manifest) = manifest else {
-        println!("policy: brightness test policy");
+        writeln!(io::stdout(), "policy: brightness test policy")?;
         return Ok(Box::new(BrightnessPolicy::default()));
     };
     Ok(Box::new(load_learned_policy(manifest, options)?))
@@ -261,7 +282,8 @@ fn load_learned_policy(manifest: &Path, options: EngineOptions) -> anyhow::Resul
             h.count, h.switch_margin
         )
     });
-    println!(
+    writeln!(
+        io::stdout(),
         "policy: {} from {} ({} network file(s), {}, trained on {:?}{commitment}), engine {}",
         manifest.kind,
         manifest.directory.display(),
@@ -269,7 +291,7 @@ fn load_learned_policy(manifest: &Path, options: EngineOptions) -> anyhow::Resul
         manifest.precision,
         manifest.training.dataset,
         policy.engine()
-    );
+    )?;
     Ok(policy)
 }
 
@@ -372,8 +394,9 @@ fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(
         episodes = node.episodes,
         watchdog_stops = node.watchdog_stops,
     );
-    print_statistics(control);
-    result.context("the transport failed")
+    let printed = print_statistics(control);
+    result.context("the transport failed")?;
+    Ok(printed?)
 }
 
 fn forward(
@@ -418,26 +441,30 @@ fn forward(
         })?);
         times.record(start.elapsed());
     }
-    println!("{steps} forward pass(es); last command {last:?}");
+    writeln!(
+        io::stdout(),
+        "{steps} forward pass(es); last command {last:?}"
+    )?;
     let Some(summary) = times.summary() else {
         return Ok(());
     };
     // The minimum is the figure to compare builds by on a shared machine: other processes
     // only ever add to a pass's time.
-    println!("time per pass: {summary}");
+    writeln!(io::stdout(), "time per pass: {summary}")?;
     let report = policy.engine();
     if let (Some(isa), Some(multiply_adds), Some(peak)) =
         (report.compiled, report.multiply_adds, peak)
     {
         let bound = Duration::from_secs_f64(multiply_adds as f64 / peak);
-        println!(
+        writeln!(
+            io::stdout(),
             "{:.2} M multiply-adds a pass; this core's measured {isa}{} peak, {:.1} G a second, \
              bounds a pass at {bound:.1?}: the fastest pass ran at {:.0} % of it",
             multiply_adds as f64 / 1e6,
             if int8 { " int8" } else { "" },
             peak / 1e9,
             100.0 * bound.as_secs_f64() / summary.min.as_secs_f64(),
-        );
+        )?;
     }
     Ok(())
 }
@@ -477,9 +504,12 @@ fn whole_ticks(
         }
         last = Some(command);
     }
-    println!("{steps} computing tick(s); last command {last:?}");
+    writeln!(
+        io::stdout(),
+        "{steps} computing tick(s); last command {last:?}"
+    )?;
     if let Some(summary) = times.summary() {
-        println!("time per computing tick: {summary}");
+        writeln!(io::stdout(), "time per computing tick: {summary}")?;
     }
     Ok(())
 }
@@ -513,14 +543,15 @@ fn dry_run(
         control.tick(input);
         control.wait_for_next_tick();
     }
-    print_statistics(&control);
+    print_statistics(&control)?;
     Ok(())
 }
 
-fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) {
+fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) -> io::Result<()> {
     let counters = control.counters();
     let sync = control.sync_counters();
-    println!(
+    writeln!(
+        io::stdout(),
         "ticks {}: {} new, {} repeated, {} stops ({} for cameras), {} policy failures, {} non-finite outputs",
         counters.ticks,
         counters.new_commands,
@@ -529,8 +560,9 @@ fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) {
         counters.camera_stops,
         counters.policy_failures,
         counters.non_finite_outputs
-    );
-    println!(
+    )?;
+    writeln!(
+        io::stdout(),
         "frames accepted top {} bottom {}; duplicates {:?}, out of order {:?}, invalid {}, stamped after their tick {}; deadline misses {}",
         sync.accepted[0],
         sync.accepted[1],
@@ -539,12 +571,18 @@ fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) {
         counters.invalid_frames,
         counters.future_frames,
         counters.deadline_misses
-    );
+    )?;
     match control.tick_stats().summary() {
-        Some(summary) => println!(
+        Some(summary) => writeln!(
+            io::stdout(),
             "tick time: p50 {:.1?} p99 {:.1?} max {:.1?}; {} overruns of the {:?} budget",
-            summary.median, summary.p99, summary.max, summary.overruns, summary.budget
-        ),
-        None => println!("tick time: no ticks ran"),
+            summary.median,
+            summary.p99,
+            summary.max,
+            summary.overruns,
+            summary.budget
+        )?,
+        None => writeln!(io::stdout(), "tick time: no ticks ran")?,
     }
+    Ok(())
 }

@@ -89,3 +89,21 @@ fn forward_whole_tick_computes_a_command_from_each_new_pair_of_frames() {
         );
     }
 }
+
+#[test]
+fn a_reader_that_has_gone_ends_a_report_quietly() {
+    // `dry-run ... | head -0`: the pipe's reader is closed before the first line is written.
+    // Rust ignores SIGPIPE, so `println!` panicked here; the reporting commands now end
+    // quietly, as a C tool would.
+    let (reader, writer) = std::io::pipe().expect("a pipe");
+    drop(reader);
+    let output = controller_command()
+        .args(["dry-run", "--seconds", "0.1"])
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .expect("run dribble-controller");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(output.status.success(), "{output:?}");
+}
