@@ -24,6 +24,11 @@ demonstrations and exports a model directory the controller loads.
   the policy visited) to the training rows; validation stays on `--dataset`'s held-out
   episodes. `--init-from CHECKPOINT|MODEL` starts from another run's kept weights, or from a
   shipped model's (dribble_models.shipped_weights).
+- Device: `--device auto` (the default) trains on a CUDA GPU where PyTorch sees one, else on
+  the CPU; the manifest's notes say which. On a GPU cuDNN and cuBLAS run their deterministic
+  algorithms, so a seed gives the same model again on the same GPU, but not the CPU's model
+  bit for bit (other kernels, other rounding). Checkpoints and the kept weights are saved
+  as CPU tensors, so a run started on one may be scored or resumed on the other.
 - Resumable: a checkpoint after every epoch (`--checkpoint-dir`, under ~/.cache/dribble by
   default); running the same command again continues where it stopped. Every random choice
   is seeded (`--seed`), per epoch, so a resumed run is the run it would have been.
@@ -154,23 +159,33 @@ class Augment:
 # Prediction as the robot runs each kind
 
 
+def device_of(model: nn.Module) -> torch.device:
+    """Where `model`'s weights are (the CPU or a GPU)."""
+    return next(model.parameters()).device
+
+
 @torch.no_grad()
 def predict_cnn(model: CNN, episode: Episode, chunk: int = 512) -> np.ndarray:
     model.eval()
-    out = [model(to_input(episode.top[i : i + chunk]), to_input(episode.bottom[i : i + chunk])).numpy() for i in range(0, len(episode), chunk)]
+    device = device_of(model)
+    out = [
+        model(to_input(episode.top[i : i + chunk]).to(device), to_input(episode.bottom[i : i + chunk]).to(device)).cpu().numpy()
+        for i in range(0, len(episode), chunk)
+    ]
     return np.concatenate(out) if out else np.zeros((0, 3), np.float32)
 
 
 @torch.no_grad()
 def predict_hcnn(model: HCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
     model.eval()
+    device = device_of(model)
     clusters = nearest(gating_features(episode.top, episode.bottom), model.centroids)
     out = np.zeros((len(episode), 3), np.float32)
     for k, expert in enumerate(model.experts):
         rows = np.flatnonzero(clusters == k)
         for i in range(0, len(rows), chunk):
             part = rows[i : i + chunk]
-            out[part] = expert(to_input(episode.top[part]), to_input(episode.bottom[part])).numpy()
+            out[part] = expert(to_input(episode.top[part]).to(device), to_input(episode.bottom[part]).to(device)).cpu().numpy()
     return out
 
 
@@ -178,11 +193,13 @@ def predict_hcnn(model: HCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
 def predict_rcnn(model: RCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
     """The whole episode from a zero state, as the controller steps it."""
     model.eval()
+    device = device_of(model)
     features = torch.cat(
-        [model.features(to_input(episode.top[i : i + chunk]), to_input(episode.bottom[i : i + chunk])) for i in range(0, len(episode), chunk)]
+        [model.features(to_input(episode.top[i : i + chunk]).to(device), to_input(episode.bottom[i : i + chunk]).to(device)) for i in range(0, len(episode), chunk)]
     )
-    out, _ = model.lstm(features.unsqueeze(0), model.zero_state())
-    return model.head(out[0]).numpy()
+    h, c = model.zero_state()
+    out, _ = model.lstm(features.unsqueeze(0), (h.to(device), c.to(device)))
+    return model.head(out[0]).cpu().numpy()
 
 
 def predict(model, kind: str, episodes: list[Episode]) -> list[np.ndarray]:
@@ -212,7 +229,7 @@ def cnn_features(path: Path) -> nn.Module:
         except ShippedWeightsError as error:
             raise DatasetError(f"--features-from: {error}") from error
     elif Path(path).is_file():
-        state = torch.load(path, weights_only=False)
+        state = torch.load(path, weights_only=False, map_location="cpu")
         if state["identity"]["kind"] != "cnn" or state["identity"].get("modes", 1) != 1:
             raise DatasetError(f"--features-from {path} is not a one-output CNN's checkpoint")
         cnn.load_state_dict(state["best"]["state"] if state["best"]["state"] is not None else state["model"])
@@ -223,10 +240,14 @@ def cnn_features(path: Path) -> nn.Module:
 
 @torch.no_grad()
 def episode_features(model: RCNN, episode: Episode, chunk: int = 512) -> torch.Tensor:
-    """An episode's camera features [T, FEATURES] (the frozen convolutions, once)."""
+    """An episode's camera features [T, FEATURES] (the frozen convolutions, once), kept on the CPU."""
     model.features.eval()
+    device = device_of(model)
     return torch.cat(
-        [model.features(to_input(episode.top[i : i + chunk]), to_input(episode.bottom[i : i + chunk])) for i in range(0, len(episode), chunk)]
+        [
+            model.features(to_input(episode.top[i : i + chunk]).to(device), to_input(episode.bottom[i : i + chunk]).to(device)).cpu()
+            for i in range(0, len(episode), chunk)
+        ]
     )
 
 
@@ -322,8 +343,9 @@ def masked_loss(out: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> 
 class Training:
     """One model's training run: data, model, optimiser, checkpoints."""
 
-    def __init__(self, args: argparse.Namespace, dataset: Dataset, added: list[Dataset] | None = None):
+    def __init__(self, args: argparse.Namespace, dataset: Dataset, added: list[Dataset] | None = None, device: torch.device | None = None):
         self.args = args
+        self.device = device or torch.device("cpu")
         self.kind = args.kind
         self.dataset = dataset
         self.added = added or []
@@ -364,6 +386,7 @@ class Training:
             self.clusters = nearest(features, self.model.centroids)
         if args.init_from is not None:
             self.start_from(args.init_from)
+        self.model.to(self.device)
         self.feature_cache: list[torch.Tensor] | None = None
         if args.features_from is not None:
             self.model.features.load_state_dict(cnn_features(args.features_from).state_dict())
@@ -387,7 +410,7 @@ class Training:
             return
         if not Path(path).is_file():
             raise DatasetError(f"--init-from {path}: no such checkpoint")
-        state = torch.load(path, weights_only=False)
+        state = torch.load(path, weights_only=False, map_location="cpu")
         if state["identity"]["kind"] != self.kind or state["identity"].get("modes", 1) != self.args.modes:
             raise DatasetError(
                 f"--init-from {path} is a {state['identity']['kind']} with {state['identity'].get('modes', 1)} command "
@@ -432,8 +455,8 @@ class Training:
         state = {
             "identity": self.identity(),
             "epoch": self.epoch,
-            "model": self.model.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
+            "model": on_cpu(self.model.state_dict()),
+            "optimizer": on_cpu(self.optimizer.state_dict()),
             "history": self.history,
             "best": self.best,
             "wall_s": self.wall_s,
@@ -446,7 +469,7 @@ class Training:
     def resume(self, path: Path) -> bool:
         if not path.is_file():
             return False
-        state = torch.load(path, weights_only=False)
+        state = torch.load(path, weights_only=False, map_location="cpu")
         if state["identity"] != self.identity():
             different = {k: (state["identity"].get(k), v) for k, v in self.identity().items() if state["identity"].get(k) != v}
             raise DatasetError(
@@ -454,7 +477,7 @@ class Training:
                 "pass --fresh to start over or --checkpoint-dir to keep both"
             )
         if state["centroids"] is not None:
-            self.model = HCNN(state["centroids"])
+            self.model = HCNN(state["centroids"]).to(self.device)
             self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self.args.lr)
             self.clusters = nearest(gating_features(self.rows.top, self.rows.bottom), self.model.centroids)
         self.model.load_state_dict(state["model"])
@@ -468,7 +491,7 @@ class Training:
         top, bottom = to_input(self.rows.top[index]), to_input(self.rows.bottom[index])
         if self.augment:
             top, bottom = self.augment(top, bottom, generator)
-        return top, bottom, torch.from_numpy(self.rows.command[index])
+        return top.to(self.device), bottom.to(self.device), torch.from_numpy(self.rows.command[index]).to(self.device)
 
     def epoch_rows(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray]]:
         """(network, row batch) pairs of one epoch, shuffled; network 0 for a CNN."""
@@ -517,7 +540,7 @@ class Training:
         bar.reset(total=len(schedule))
         model, window, lanes = self.model, self.args.window, self.args.lanes
         model.train()
-        h, c = model.zero_state(lanes)
+        h, c = (state.to(self.device) for state in model.zero_state(lanes))
         losses = []
         if self.feature_cache is not None:
             model.features.eval()  # frozen: no batch statistics or dropout to update anyway
@@ -538,6 +561,8 @@ class Training:
                 if self.augment:
                     t, b = self.augment(t, b, generator)
                 top[lane, : end - start], bottom[lane, : end - start] = t, b
+            top, bottom = top.to(self.device), bottom.to(self.device)
+            target, mask, fresh = target.to(self.device), mask.to(self.device), fresh.to(self.device)
             out, (h, c) = model(top, bottom, (h * fresh, c * fresh))
             h, c = h.detach(), c.detach()
             loss = masked_loss(out, target, mask)
@@ -557,6 +582,8 @@ class Training:
         for lane, (e, start) in lanes_in(step):
             end = min(start + window, len(self.train_episodes[e]))
             features[lane, : end - start] = self.feature_cache[e][start:end]
+        features = features.to(self.device)
+        target, mask, fresh = target.to(self.device), mask.to(self.device), fresh.to(self.device)
         out, (h, c) = model.lstm(features, (h * fresh, c * fresh))
         self.cached_state = (h.detach(), c.detach())
         loss = masked_loss(model.head(out), target, mask)
@@ -585,7 +612,7 @@ class Training:
             self.wall_s += time.monotonic() - started
             self.history.append({"epoch": self.epoch, "loss": loss, "validation_error": validation["error"], "wall_s": self.wall_s})
             if validation["error"] < self.best["error"]:
-                self.best = {"error": validation["error"], "epoch": self.epoch, "state": {k: v.clone() for k, v in self.model.state_dict().items()}}
+                self.best = {"error": validation["error"], "epoch": self.epoch, "state": on_cpu(self.model.state_dict())}
             self.save(checkpoint)
             outer.set_postfix(loss=f"{loss:.4f}", val_error=f"{validation['error']:.4f}", best=f"{self.best['error']:.4f}@{self.best['epoch']}")
             outer.update(1)
@@ -593,6 +620,42 @@ class Training:
         outer.close()
         if self.best["state"] is not None:
             self.model.load_state_dict(self.best["state"])
+
+
+def on_cpu(state):
+    """A copy of a state dict (nested dicts and lists of tensors) with every tensor on the CPU,
+    so that checkpoints and kept weights load anywhere."""
+    if isinstance(state, torch.Tensor):
+        return state.detach().to("cpu", copy=True)
+    if isinstance(state, dict):
+        return {k: on_cpu(v) for k, v in state.items()}
+    if isinstance(state, list):
+        return [on_cpu(v) for v in state]
+    return state
+
+
+def training_device(choice: str) -> torch.device:
+    """`--device`: auto is a CUDA GPU where PyTorch sees one, else the CPU. On a GPU, cuDNN and
+    cuBLAS are held to deterministic algorithms (a seed gives the same model again there) and
+    to full fp32 arithmetic."""
+    if choice == "auto":
+        choice = "cuda" if torch.cuda.is_available() else "cpu"
+    if choice == "cuda":
+        if not torch.cuda.is_available():
+            raise DatasetError("--device cuda: PyTorch sees no CUDA GPU here (use --device cpu or auto)")
+        # Read when cuBLAS starts: its deterministic workspace.
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+        torch.backends.cudnn.deterministic = True
+        torch.backends.cudnn.benchmark = False
+        # Full fp32 products, as the robot computes (TF32 would round inputs to 10 bits).
+        torch.backends.cudnn.allow_tf32 = False
+        torch.backends.cuda.matmul.allow_tf32 = False
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    return torch.device(choice)
+
+
+def device_name(device: torch.device) -> str:
+    return f"cuda ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else "the CPU"
 
 
 def plot_history(history: list[dict], path: Path, title: str) -> None:
@@ -627,7 +690,7 @@ def start_sha256(path: Path) -> str:
     return file_sha256(network_of(path) if is_shipped_model(path) else path)
 
 
-def notes_of(args: argparse.Namespace) -> str:
+def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> str:
     parts = [
         f"Adam lr {args.lr}",
         f"batch {args.batch_size}" if args.kind != "rcnn" else f"{args.lanes} lanes of {args.window}-step windows",
@@ -653,6 +716,8 @@ def notes_of(args: argparse.Namespace) -> str:
     if args.features_from is not None:
         how = "kept fixed" if args.freeze_features else "trained on"
         parts.append(f"convolutions from the CNN {args.features_from} (sha256 {start_sha256(args.features_from)[:12]}), {how}")
+    if device is not None and device.type != "cpu":
+        parts.append(f"trained on {device_name(device)}")
     parts.append("train_error over every episode of the training dataset (validation ones too)")
     return "; ".join(parts)
 
@@ -687,6 +752,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")
+    parser.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="auto",
+        help="where to train: auto is a CUDA GPU where PyTorch sees one, else the CPU (a GPU's model is not the CPU's bit for bit; the manifest's notes name the GPU)",
+    )
     parser.add_argument("--checkpoint-dir", type=Path, help="where the resumable checkpoint lives (default ~/.cache/dribble/checkpoints/<out>)")
     parser.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint and start over")
     args = parser.parse_args(argv)
@@ -713,6 +784,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
     try:
+        device = training_device(args.device)
         dataset = load(args.dataset)
         added = [load(directory) for directory in args.add_dataset]
         mixed = sorted({d.teacher for d in (dataset, *added)})
@@ -730,7 +802,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}, labelled by the {dataset.teacher} teacher", file=sys.stderr)
         for extra in added:
             print(f"  plus {extra.directory}: {len(extra.episodes)} episodes, {extra.rows} rows, hash {extra.content_hash[:12]}", file=sys.stderr)
-        training = Training(args, dataset, added)
+        print(f"training on {device_name(device)}", file=sys.stderr)
+        training = Training(args, dataset, added, device)
     except DatasetError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -766,8 +839,9 @@ def main(argv: list[str] | None = None) -> int:
         train_error=scores["train"]["error"],
         validation_error=scores["validation"]["error"],
         test_error=scores["test"]["error"] if test else None,
-        notes=notes_of(args),
+        notes=notes_of(args, device),
     )
+    training.model.to("cpu")  # exported and plotted from the CPU
     args.out.mkdir(parents=True, exist_ok=True)
     export_policy(training.model, args.out, record)
     plot_history(training.history, args.out / "loss_curve.png", f"{args.kind} on {args.dataset.name} ({dataset.rows} rows)")
