@@ -138,7 +138,8 @@ class RCNN(nn.Module):
         return self.head(out), state
 
     def zero_state(self, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
-        zeros = torch.zeros(1, batch, self.lstm.hidden_size)
+        """The LSTM's zero state for `batch` sequences, where the weights are (CPU or GPU)."""
+        zeros = torch.zeros(1, batch, self.lstm.hidden_size, device=self.head.weight.device)
         return zeros, zeros.clone()
 
 

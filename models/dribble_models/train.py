@@ -104,9 +104,9 @@ def score(predictions: list[np.ndarray], episodes: list[Episode]) -> dict:
 # Inputs
 
 
-def to_input(thumbnails: np.ndarray) -> torch.Tensor:
-    """u8 [N,H,W] -> f32 [N,1,H,W], `pixel * scale` as the robot computes it."""
-    return torch.from_numpy(np.asarray(thumbnails)).unsqueeze(1).float() * torch.tensor(SCALE)
+def to_input(thumbnails: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
+    """u8 [N,H,W] -> f32 [N,1,H,W] on `device`, `pixel * scale` as the robot computes it."""
+    return (torch.from_numpy(np.asarray(thumbnails)).unsqueeze(1).float() * torch.tensor(SCALE)).to(device)
 
 
 def gating_features(top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
@@ -169,7 +169,7 @@ def predict_cnn(model: CNN, episode: Episode, chunk: int = 512) -> np.ndarray:
     model.eval()
     device = device_of(model)
     out = [
-        model(to_input(episode.top[i : i + chunk]).to(device), to_input(episode.bottom[i : i + chunk]).to(device)).cpu().numpy()
+        model(to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device)).cpu().numpy()
         for i in range(0, len(episode), chunk)
     ]
     return np.concatenate(out) if out else np.zeros((0, 3), np.float32)
@@ -185,7 +185,7 @@ def predict_hcnn(model: HCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
         rows = np.flatnonzero(clusters == k)
         for i in range(0, len(rows), chunk):
             part = rows[i : i + chunk]
-            out[part] = expert(to_input(episode.top[part]).to(device), to_input(episode.bottom[part]).to(device)).cpu().numpy()
+            out[part] = expert(to_input(episode.top[part], device), to_input(episode.bottom[part], device)).cpu().numpy()
     return out
 
 
@@ -195,10 +195,9 @@ def predict_rcnn(model: RCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
     model.eval()
     device = device_of(model)
     features = torch.cat(
-        [model.features(to_input(episode.top[i : i + chunk]).to(device), to_input(episode.bottom[i : i + chunk]).to(device)) for i in range(0, len(episode), chunk)]
+        [model.features(to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device)) for i in range(0, len(episode), chunk)]
     )
-    h, c = model.zero_state()
-    out, _ = model.lstm(features.unsqueeze(0), (h.to(device), c.to(device)))
+    out, _ = model.lstm(features.unsqueeze(0), model.zero_state())
     return model.head(out[0]).cpu().numpy()
 
 
@@ -245,7 +244,7 @@ def episode_features(model: RCNN, episode: Episode, chunk: int = 512) -> torch.T
     device = device_of(model)
     return torch.cat(
         [
-            model.features(to_input(episode.top[i : i + chunk]).to(device), to_input(episode.bottom[i : i + chunk]).to(device)).cpu()
+            model.features(to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device)).cpu()
             for i in range(0, len(episode), chunk)
         ]
     )
@@ -318,10 +317,10 @@ def lanes_in(step: list[tuple[int, int] | None]):
     return [(lane, item) for lane, item in enumerate(step) if item is not None]
 
 
-def window_targets(step, episodes: list[Episode], window: int, lanes: int):
-    """For one step's windows: the expert's commands [lanes, window, 3], the mask of real
-    rows [lanes, window], and the factor [1, lanes, 1] that zeroes the carried state of a
-    lane whose window starts an episode (as on the robot)."""
+def window_targets(step, episodes: list[Episode], window: int, lanes: int, device: torch.device | str = "cpu"):
+    """For one step's windows, on `device`: the expert's commands [lanes, window, 3], the mask
+    of real rows [lanes, window], and the factor [1, lanes, 1] that zeroes the carried state
+    of a lane whose window starts an episode (as on the robot)."""
     target = torch.zeros(lanes, window, 3)
     mask = torch.zeros(lanes, window)
     fresh = torch.ones(1, lanes, 1)
@@ -331,7 +330,7 @@ def window_targets(step, episodes: list[Episode], window: int, lanes: int):
         mask[lane, : end - start] = 1.0
         if start == 0:
             fresh[0, lane, 0] = 0.0
-    return target, mask, fresh
+    return target.to(device), mask.to(device), fresh.to(device)
 
 
 def masked_loss(out: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -540,7 +539,7 @@ class Training:
         bar.reset(total=len(schedule))
         model, window, lanes = self.model, self.args.window, self.args.lanes
         model.train()
-        h, c = (state.to(self.device) for state in model.zero_state(lanes))
+        h, c = model.zero_state(lanes)
         losses = []
         if self.feature_cache is not None:
             model.features.eval()  # frozen: no batch statistics or dropout to update anyway
@@ -553,7 +552,7 @@ class Training:
                 continue
             top = torch.zeros(lanes, window, 1, *contract.TOP_SHAPE)
             bottom = torch.zeros(lanes, window, 1, *contract.BOTTOM_SHAPE)
-            target, mask, fresh = window_targets(step, episodes, window, lanes)
+            target, mask, fresh = window_targets(step, episodes, window, lanes, self.device)
             for lane, (e, start) in lanes_in(step):
                 episode = episodes[e]
                 end = min(start + window, len(episode))
@@ -562,7 +561,6 @@ class Training:
                     t, b = self.augment(t, b, generator)
                 top[lane, : end - start], bottom[lane, : end - start] = t, b
             top, bottom = top.to(self.device), bottom.to(self.device)
-            target, mask, fresh = target.to(self.device), mask.to(self.device), fresh.to(self.device)
             out, (h, c) = model(top, bottom, (h * fresh, c * fresh))
             h, c = h.detach(), c.detach()
             loss = masked_loss(out, target, mask)
@@ -578,12 +576,11 @@ class Training:
         """One optimiser step of the LSTM and head on the cached features of `step`'s windows."""
         model, window, lanes = self.model, self.args.window, self.args.lanes
         features = torch.zeros(lanes, window, FEATURES)
-        target, mask, fresh = window_targets(step, self.train_episodes, window, lanes)
+        target, mask, fresh = window_targets(step, self.train_episodes, window, lanes, self.device)
         for lane, (e, start) in lanes_in(step):
             end = min(start + window, len(self.train_episodes[e]))
             features[lane, : end - start] = self.feature_cache[e][start:end]
         features = features.to(self.device)
-        target, mask, fresh = target.to(self.device), mask.to(self.device), fresh.to(self.device)
         out, (h, c) = model.lstm(features, (h * fresh, c * fresh))
         self.cached_state = (h.detach(), c.detach())
         loss = masked_loss(model.head(out), target, mask)
