@@ -11,6 +11,7 @@
 use core::fmt;
 
 use super::kernels::int8::Int8Kernel;
+use super::kernels::winograd::Fit;
 use core::str::FromStr;
 
 /// A set of instructions the kernels can be compiled for, from the most portable up.
@@ -97,20 +98,27 @@ impl Isa {
         }
     }
 
-    /// Whether this set's kernels compute a 5x5 convolution of stride two and its 2x2 pool
-    /// with fewer multiplications ([`super::kernels::winograd`]), and the lanes of the vectors they
-    /// do it with: the input channels must be a whole number of them, the output channels
-    /// of twice as many. Not on the 32-bit V5 build, whose direct kernels are written in
-    /// assembly for its eight registers and counted under callgrind (`cross/README.md`), nor
-    /// on the portable path.
-    pub(crate) fn winograd_lanes(self) -> Option<usize> {
-        match self {
-            Self::Portable => None,
-            _ if cfg!(target_arch = "x86") => None,
-            Self::Sse2 | Self::Ssse3 | Self::Sse42 => Some(4),
+    /// Which 5x5 stride-two convolutions with their 2x2 pool this set's kernels compute with
+    /// fewer multiplications ([`super::kernels::winograd`]): channels in whole vectors of its
+    /// lanes, on every SSE and AVX set; not the portable path. On the 32-bit V5 build (blocks
+    /// of one tile by two vectors, what its eight registers hold) only layers of at least 16
+    /// input channels: callgrind (`cross/count v5`, `cnn-observable`) counted 5.96 M
+    /// instructions a forward with the direct kernels, 5.73 M with both second layers by
+    /// Winograd and 5.70 M with the top camera's (16 inputs) alone; the narrow CNN's (8 and
+    /// 4 inputs) went from 6.61 M to 6.70 M with its two, where the hand-written direct
+    /// kernels win (`cross/README.md`, "Winograd on the V5").
+    pub(crate) fn winograd_fit(self) -> Option<Fit> {
+        let lanes = match self {
+            Self::Portable => return None,
+            Self::Sse2 | Self::Ssse3 | Self::Sse42 => 4,
             // AVX-512 takes the AVX2 kernel where its channels are not whole 16-lane vectors.
-            Self::Avx2Fma | Self::Avx512 => Some(8),
-        }
+            Self::Avx2Fma | Self::Avx512 => 8,
+        };
+        let min_in_channels = if cfg!(target_arch = "x86") { 16 } else { lanes };
+        Some(Fit {
+            lanes,
+            min_in_channels,
+        })
     }
 
     /// The int8 kernel an int8 policy's layers run with under this set: `pmaddubsw` from
@@ -155,5 +163,30 @@ impl FromStr for Isa {
                     names.join(", ")
                 )
             })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The layers each set takes by Winograd: the paper's second layers (16 -> 32, 8 -> 16)
+    /// on x86-64; on the V5's i686 only the 16-input one (its direct kernels win below).
+    #[test]
+    fn winograd_takes_whole_vectors_and_on_the_v5_only_wide_inputs() {
+        assert_eq!(Isa::Portable.winograd_fit(), None);
+        for isa in [Isa::Sse2, Isa::Ssse3, Isa::Sse42] {
+            let fit = isa.winograd_fit().expect("SSE takes Winograd");
+            assert!(fit.takes(16, 32), "{isa}");
+            assert_eq!(fit.takes(8, 16), cfg!(target_arch = "x86_64"), "{isa}");
+            assert_eq!(fit.takes(4, 8), cfg!(target_arch = "x86_64"), "{isa}");
+            assert!(
+                !fit.takes(18, 32) && !fit.takes(16, 36),
+                "{isa}: not whole vectors"
+            );
+        }
+        let avx = Isa::Avx2Fma.winograd_fit().expect("AVX2 takes Winograd");
+        assert!(avx.takes(16, 32) && !avx.takes(4, 8));
+        assert_eq!(avx.takes(8, 16), cfg!(target_arch = "x86_64"));
     }
 }

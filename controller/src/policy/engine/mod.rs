@@ -68,7 +68,7 @@ impl CompiledNetwork {
             model,
             inputs,
             isa.dense_panel_width(),
-            isa.winograd_lanes(),
+            isa.winograd_fit(),
             isa.int8_kernel(),
         )?;
         let mut buffers = lowering.buffers;

@@ -186,7 +186,6 @@ impl Kernels for SseKernels {
         }
     }
 
-    #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn winograd_conv_pool(
         layer: &winograd::Layer,
@@ -217,13 +216,20 @@ impl Kernels for SseKernels {
                 )
             };
         }
-        if layer.out_channels.is_multiple_of(32) {
+        #[cfg(target_arch = "x86_64")]
+        let done = if layer.out_channels.is_multiple_of(32) {
             blocked!(1, 8)
         } else if layer.out_channels.is_multiple_of(16) {
             blocked!(1, 4)
         } else {
             blocked!(5, 2)
-        }
+        };
+        // The V5's eight registers: one tile by two vectors, its four inputs broadcast at a
+        // time (two accumulators, four broadcasts, a product; the layers it gets:
+        // `Isa::winograd_fit`).
+        #[cfg(target_arch = "x86")]
+        let done = blocked!(1, 2);
+        done
     }
 
     #[inline(always)]

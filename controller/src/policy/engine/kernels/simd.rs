@@ -66,20 +66,15 @@ pub(crate) trait Vector: Copy {
     ///
     /// # Safety
     /// `values` must point at `LANES` readable floats.
-    // Winograd's transforms (x86-64 only) are their one user: unused in the V5's i686 build.
-    #[cfg_attr(target_arch = "x86", allow(dead_code))]
     unsafe fn load_unchecked(values: *const f32) -> Self;
     /// Stores the `LANES` values at `values`, on any boundary.
     ///
     /// # Safety
     /// `values` must point at `LANES` writable floats.
-    #[cfg_attr(target_arch = "x86", allow(dead_code))]
     unsafe fn store_unchecked(self, values: *mut f32);
     /// `a * b + c`: fused where the set has FMA.
     fn mul_add(a: Self, b: Self, c: Self) -> Self;
-    #[cfg_attr(target_arch = "x86", allow(dead_code))]
     fn add(a: Self, b: Self) -> Self;
-    #[cfg_attr(target_arch = "x86", allow(dead_code))]
     fn sub(a: Self, b: Self) -> Self;
     fn max(a: Self, b: Self) -> Self;
 }
@@ -96,7 +91,8 @@ impl Vector for Sse {
     const LANES: usize = 4;
     // Not on the 32-bit V5 build: its eight registers cannot hold the four broadcasts beside
     // the accumulators, and the spills cost more than the shuffles save (callgrind:
-    // 7.97 M instructions per CNN forward against 7.85 M).
+    // 7.97 M instructions per CNN forward against 7.85 M). The Winograd products there use
+    // them anyway, in blocks small enough to fit (`winograd::conv_pool`'s `product_block`).
     const QUAD_BROADCAST: bool = cfg!(target_arch = "x86_64");
 
     /// On the 32-bit V5 build, in assembly: the whole window in one loop nest, four taps at

@@ -56,6 +56,26 @@ const G: [[f64; 3]; 4] = [
     [0.0, 0.0, 1.0],
 ];
 
+/// Which layers an instruction set's kernels take by this method ([`crate::policy::engine::Isa::winograd_fit`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Fit {
+    /// The lanes of the kernels' vectors: the input channels must be a whole number of
+    /// them, the output channels of twice as many.
+    pub lanes: usize,
+    /// The fewest input channels a layer must have to gain: below it the transforms cost
+    /// more than the saved multiply-adds.
+    pub min_in_channels: usize,
+}
+
+impl Fit {
+    /// Whether a layer of `in_channels` to `out_channels` suits the kernels.
+    pub(crate) fn takes(self, in_channels: usize, out_channels: usize) -> bool {
+        in_channels >= self.min_in_channels
+            && in_channels.is_multiple_of(self.lanes)
+            && out_channels.is_multiple_of(2 * self.lanes)
+    }
+}
+
 /// A convolution-and-pool layer as the Winograd kernels take it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Layer {
@@ -173,11 +193,10 @@ pub(crate) fn transform_weights(
     AlignedWeights::new(&u)
 }
 
-// x86-64 only: the 32-bit build keeps its direct kernels (`super::Isa::winograd_lanes`).
-#[cfg(target_arch = "x86_64")]
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 pub(crate) use vector::conv_pool;
 
-#[cfg(target_arch = "x86_64")]
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod vector {
     #![allow(unsafe_code)]
 
@@ -454,7 +473,10 @@ mod vector {
             &transformed[first * tile + point * k..(first + P - 1) * tile + (point + 1) * k];
         let u = &u[..k * oc];
         let mut acc = [[V::zero(); VECS]; P];
-        if V::QUAD_BROADCAST && k.is_multiple_of(4) {
+        // On the V5's eight registers too where the four broadcasts fit beside the block's
+        // accumulators and a product: at most two accumulators.
+        let quad = V::QUAD_BROADCAST || (cfg!(target_arch = "x86") && P * VECS <= 2);
+        if quad && k.is_multiple_of(4) {
             // SSE: four inputs of a tile broadcast by one load and four shuffles (a broadcast
             // each takes a load and a shuffle), the weights read by the multiplies from
             // memory; the same products summed in the same order as below.
@@ -621,7 +643,7 @@ mod tests {
 
 /// The vector kernels against the direct convolution, on each vector set this CPU runs, for
 /// the networks' channel counts (compiled-in sizes) and others (the general loop).
-#[cfg(all(test, target_arch = "x86_64"))]
+#[cfg(all(test, any(target_arch = "x86", target_arch = "x86_64")))]
 #[allow(unsafe_code)] // calling kernels compiled for a set this test checked the CPU has
 mod vector_tests {
     use super::tests::values;
@@ -724,7 +746,8 @@ mod vector_tests {
 
     /// The SSE kernel with `P` tiles by `VECS` vectors per block: five by two (the layers whose
     /// channels fill neither 16 nor 32), and the blockings the engine runs for 32 and 16
-    /// output channels (`SseKernels::winograd_conv_pool`), one by eight and one by four.
+    /// output channels (`SseKernels::winograd_conv_pool`), one by eight and one by four on
+    /// x86-64, one by two (broadcasting four inputs at a time there) on the V5's i686.
     fn sse<const P: usize, const VECS: usize>(
         l: &Layer,
         x: &[f32],
@@ -771,6 +794,7 @@ mod vector_tests {
             ("sse 5x2", sse::<5, 2>, lanes, 2 * lanes),
             ("sse 1x8", sse::<1, 8>, lanes, 8 * lanes),
             ("sse 1x4", sse::<1, 4>, lanes, 4 * lanes),
+            ("sse 1x2", sse::<1, 2>, lanes, 2 * lanes),
         ];
         if Isa::Avx2Fma.is_available() {
             kernels.push(("avx2", avx, Avx::LANES, 2 * Avx::LANES));

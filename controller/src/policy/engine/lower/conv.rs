@@ -202,7 +202,7 @@ impl Lowerer {
         };
         if let Some((index, scratch_len)) = fold {
             let scratch = self.buffer(scratch_len)?;
-            let lanes = self.winograd_lanes;
+            let fit = self.winograd;
             let mut winograd_buffers = None;
             if let Step::Conv {
                 padded,
@@ -224,17 +224,15 @@ impl Lowerer {
                 let (ic, oc) = (shape.in_channels, shape.out_channels);
                 let row = shape.padded_width * ic;
                 let padded_rows = self.buffers[*padded].len() / row.max(1);
-                let layer = lanes
-                    .filter(|&lanes| ic.is_multiple_of(lanes) && oc.is_multiple_of(2 * lanes))
-                    .and_then(|_| {
-                        winograd::Layer::new(
-                            [shape.kernel, shape.stride],
-                            [[kernel[0], kernel[1]], [strides[0], strides[1]]],
-                            [shape.padded_width, padded_rows],
-                            [ic, oc],
-                            out,
-                        )
-                    });
+                let layer = fit.filter(|fit| fit.takes(ic, oc)).and_then(|_| {
+                    winograd::Layer::new(
+                        [shape.kernel, shape.stride],
+                        [[kernel[0], kernel[1]], [strides[0], strides[1]]],
+                        [shape.padded_width, padded_rows],
+                        [ic, oc],
+                        out,
+                    )
+                });
                 if let Some(layer) = layer {
                     // The rows past the padding that the last tiles read: zero, as the
                     // border is (the padding step writes only the map's own rows).

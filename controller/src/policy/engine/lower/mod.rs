@@ -146,8 +146,8 @@ struct Lowerer {
     opset: i64,
     /// The widest panel of a dense layer's weights.
     dense_width: usize,
-    /// The kernels' lanes for the Winograd convolution ([`super::Isa::winograd_lanes`]).
-    winograd_lanes: Option<usize>,
+    /// The layers the kernels take by Winograd ([`super::Isa::winograd_fit`]).
+    winograd: Option<winograd::Fit>,
     /// The int8 kernel of a QDQ graph's integer steps ([`super::Isa::int8_kernel`]).
     int8: Int8Kernel,
     /// Integer constants (int8, uint8, int32), which only `DequantizeLinear` reads.
@@ -163,14 +163,13 @@ struct Lowerer {
 
 /// Lowers `graph` for inputs of the given shapes;
 /// `dense_width`: the most outputs a dense layer's weight panel holds (the kernels' choice,
-/// [`super::Isa::dense_panel_width`]); `winograd_lanes`: whether the kernels take 5x5
-/// stride-two convolutions with their 2x2 pool by [`super::kernels::winograd`], and in vectors of
-/// how many lanes; `int8`: the kernel of a QDQ graph's integer steps.
+/// [`super::Isa::dense_panel_width`]); `winograd`: which 5x5 stride-two convolutions with
+/// their 2x2 pool the kernels take by [`super::kernels::winograd`], if any; `int8`: the kernel of a QDQ graph's integer steps.
 pub(crate) fn lower(
     model: &pb::ModelProto,
     inputs: &[(&str, &[usize])],
     dense_width: usize,
-    winograd_lanes: Option<usize>,
+    winograd: Option<winograd::Fit>,
     int8: Int8Kernel,
 ) -> Lowered<Lowering> {
     let graph = model
@@ -194,7 +193,7 @@ pub(crate) fn lower(
         allocated: 0,
         opset,
         dense_width,
-        winograd_lanes,
+        winograd,
         int8,
         codes: HashMap::new(),
         pending: HashMap::new(),
