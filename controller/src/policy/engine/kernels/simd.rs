@@ -26,6 +26,13 @@ pub(crate) trait Vector: Copy {
     /// of a scalar from memory takes two instructions (a load and a shuffle) where one load
     /// and one shuffle per value serve four; AVX broadcasts from memory in one.
     const QUAD_BROADCAST: bool;
+    /// Whether a block of products that keeps `accumulators` vectors in registers broadcasts
+    /// its inputs with [`Self::splat4`]: where the set prefers it ([`Self::QUAD_BROADCAST`]),
+    /// or where the four broadcasts fit in its registers beside those accumulators.
+    #[inline(always)]
+    fn quad_broadcast_fits(_accumulators: usize) -> bool {
+        Self::QUAD_BROADCAST
+    }
     fn zero() -> Self;
     fn splat(x: f32) -> Self;
     /// Four vectors, each the broadcast of one of `values[0..4]`.
@@ -91,9 +98,15 @@ impl Vector for Sse {
     const LANES: usize = 4;
     // Not on the 32-bit V5 build: its eight registers cannot hold the four broadcasts beside
     // the accumulators, and the spills cost more than the shuffles save (callgrind:
-    // 7.97 M instructions per CNN forward against 7.85 M). The Winograd products there use
-    // them anyway, in blocks small enough to fit (`winograd::conv_pool`'s `product_block`).
+    // 7.97 M instructions per CNN forward against 7.85 M).
     const QUAD_BROADCAST: bool = cfg!(target_arch = "x86_64");
+
+    /// On the V5's eight registers too for at most two accumulators: with the four broadcasts
+    /// and a product, seven of them (the Winograd products' one-tile-by-two-vectors blocks).
+    #[inline(always)]
+    fn quad_broadcast_fits(accumulators: usize) -> bool {
+        Self::QUAD_BROADCAST || accumulators <= 2
+    }
 
     /// On the 32-bit V5 build, in assembly: the whole window in one loop nest, four taps at
     /// a time where a row has them (their inputs loaded once and broadcast by `pshufd`),

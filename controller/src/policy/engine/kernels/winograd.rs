@@ -473,10 +473,7 @@ mod vector {
             &transformed[first * tile + point * k..(first + P - 1) * tile + (point + 1) * k];
         let u = &u[..k * oc];
         let mut acc = [[V::zero(); VECS]; P];
-        // On the V5's eight registers too where the four broadcasts fit beside the block's
-        // accumulators and a product: at most two accumulators.
-        let quad = V::QUAD_BROADCAST || (cfg!(target_arch = "x86") && P * VECS <= 2);
-        if quad && k.is_multiple_of(4) {
+        if V::quad_broadcast_fits(P * VECS) && k.is_multiple_of(4) {
             // SSE: four inputs of a tile broadcast by one load and four shuffles (a broadcast
             // each takes a load and a shuffle), the weights read by the multiplies from
             // memory; the same products summed in the same order as below.
