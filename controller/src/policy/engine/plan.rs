@@ -5,7 +5,7 @@
 
 use core::mem;
 
-use super::kernels::int8::{Int8Kernel, QuadPanels, Window, code_run};
+use super::kernels::int8::{Int8Kernel, QuadPanels, Window, ZeroGroups, code_run};
 use super::kernels::winograd;
 use super::kernels::{Kernels, portable};
 use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Grid, Strided};
@@ -43,16 +43,22 @@ pub(crate) struct WinogradConv {
 /// (the grid is monotonic and holds 0.0), so their order in the graph does not matter.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct Epilogue {
-    /// The input's zero point times each output's sum of weights.
+    /// The input's zero point times each output's sum of weights (a convolution's for each
+    /// output pixel of a row in turn: [`Self::tiled`]).
     pub offsets: Vec<i32>,
-    /// Input scale times each output's weight scale.
+    /// Input scale times each output's weight scale (tiled as `offsets`).
     pub scales: Vec<f32>,
+    /// Tiled as `offsets`.
     pub bias: Vec<f32>,
     pub relu: bool,
     pub output: Option<Grid>,
 }
 
 impl Epilogue {
+    /// The epilogue of each sum of `sums` (whole cells of one sum per output: output pixels
+    /// or pooled outputs, or one row of a dense layer) into the same place in `out`. One
+    /// call for a whole row of cells: the case and its constants are set up once, where one
+    /// call a cell cost about 35 instructions each on the V5 (callgrind).
     #[inline(always)]
     fn apply(&self, sums: &[i32], out: &mut [f32]) {
         // One loop per case, each a straight line the compiler vectorises inside the
@@ -66,9 +72,17 @@ impl Epilogue {
         }
     }
 
-    /// `out[o] = finish((sums[o] - offset) x scale + bias)`, one loop.
+    /// `out[o] = finish((sums[o] - offset) x scale + bias)`, one loop over the whole row of
+    /// cells (the terms are [`Self::tiled`] to it: with a loop per cell, its set-up and
+    /// tail cost more than its eight outputs on the V5, callgrind).
     #[inline(always)]
     fn each(&self, sums: &[i32], out: &mut [f32], finish: impl Fn(f32) -> f32) {
+        assert!(
+            sums.len() == out.len() && sums.len() <= self.offsets.len(),
+            "int8 epilogue of {} sums for {} terms",
+            sums.len(),
+            self.offsets.len()
+        );
         let terms = sums
             .iter()
             .zip(&self.offsets)
@@ -77,6 +91,16 @@ impl Epilogue {
             // Exact: the lowering caps the inputs so that both terms stay below 2^30.
             *y = finish((sum - offset) as f32 * scale + bias);
         }
+    }
+
+    /// The per-output terms repeated for `cells` cells one after the other, so that
+    /// [`Self::apply`] takes a row of that many cells (output pixels or pooled outputs) in
+    /// one loop.
+    pub(crate) fn tiled(mut self, cells: usize) -> Self {
+        self.offsets = self.offsets.repeat(cells);
+        self.scales = self.scales.repeat(cells);
+        self.bias = self.bias.repeat(cells);
+        self
     }
 }
 
@@ -97,6 +121,8 @@ pub(crate) struct QuantizedConv {
     /// `[out channel][ky][kx][c]` rows.
     pub weights: QuadPanels,
     pub kernel: Int8Kernel,
+    /// Whether the kernel skips groups of sixteen zero codes: not on a camera's pixels.
+    pub zeros: ZeroGroups,
     pub epilogue: Epilogue,
     /// Scratch, allocated at load: the padded map's codes (the border holds the zero
     /// point; [`Window::slack`] bytes after it), the windows of one row of outputs (pixels,
@@ -322,7 +348,7 @@ impl Step {
                     * pixels[1]
                     * conv.window.kernel[0]
                     * conv.window.row()
-                    * conv.epilogue.bias.len()
+                    * conv.weights.outputs()
             }
             Self::QuantizedDense(dense) => {
                 dense.rows * dense.weights.inputs() * dense.weights.outputs()
@@ -576,6 +602,7 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
         out_size: [oh, ow],
         weights,
         kernel,
+        zeros,
         epilogue,
         codes,
         windows,
@@ -602,19 +629,19 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
     let len = window.padded_len();
     // One row of outputs (pixels, or max-pool cells) at a time: their windows one after the
     // other, one kernel call for the row (the kernel keeps each cell's largest sum), then
-    // each output's epilogue.
+    // one epilogue call for the row's outputs.
     with_output(buffers, *out, |target, _| match pool {
         None => {
             let rows = target.chunks_exact_mut(*ow * outputs).take(*oh);
             for (y, values) in rows.enumerate() {
                 window.gather_cells(codes, [y, 0], [1, 1], [*ow, 1], windows);
-                kernel.largest(&windows[..*ow * len], weights, &mut sums[..*ow * outputs]);
-                for (values, sums) in values
-                    .chunks_exact_mut(outputs)
-                    .zip(sums.chunks_exact(outputs))
-                {
-                    epilogue.apply(sums, values);
-                }
+                kernel.largest(
+                    &windows[..*ow * len],
+                    weights,
+                    &mut sums[..*ow * outputs],
+                    *zeros,
+                );
+                epilogue.apply(&sums[..*ow * outputs], values);
             }
         }
         Some(QuantizedPool {
@@ -630,13 +657,9 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
                     &windows[..*pw * cell_len],
                     weights,
                     &mut sums[..*pw * outputs],
+                    *zeros,
                 );
-                for (values, sums) in values
-                    .chunks_exact_mut(outputs)
-                    .zip(sums.chunks_exact(outputs))
-                {
-                    epilogue.apply(sums, values);
-                }
+                epilogue.apply(&sums[..*pw * outputs], values);
             }
         }
     });
@@ -661,7 +684,7 @@ fn quantized_dense(dense: &mut QuantizedDense, buffers: &mut [Vec<f32>]) {
     let x = &buffers[*from];
     for r in 0..*rows {
         code_run(*input, &x[r * k..(r + 1) * k], &mut codes[..k]);
-        kernel.largest(codes, weights, sums);
+        kernel.largest(codes, weights, sums, ZeroGroups::Skip);
         epilogue.apply(sums, &mut target[r * n..(r + 1) * n]);
     }
     buffers[*to] = target;

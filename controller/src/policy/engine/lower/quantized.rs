@@ -17,7 +17,7 @@
 //!   computes from them.
 
 use super::*;
-use crate::policy::engine::kernels::int8::Window;
+use crate::policy::engine::kernels::int8::{Window, ZeroGroups};
 use crate::policy::engine::layout::Grid;
 use crate::policy::engine::plan::{Epilogue, QuantizedConv, QuantizedDense};
 
@@ -379,7 +379,8 @@ impl Lowerer {
         let Ok(panels) = self.int8.lay_out(&rows, oc, inputs) else {
             return Ok(None);
         };
-        let epilogue = Self::epilogue(grid, &rows, inputs, &scales, bias.to_vec());
+        // Terms for a whole row of output pixels (a row of pooled outputs is shorter).
+        let epilogue = Self::epilogue(grid, &rows, inputs, &scales, bias.to_vec()).tiled(out[1]);
         let padded_len = elements(&[padded[0], padded[1], c])?;
         let out_buffer = self.buffer(elements(&[out[0], out[1], oc])?)?;
         Ok(Some(QuantizedConv {
@@ -392,6 +393,13 @@ impl Lowerer {
             out_size: out,
             weights: panels,
             kernel: self.int8,
+            // The engine writes its own maps NHWC; an NCHW one is an input of the network, a
+            // camera's pixels, in which sixteen zero codes in a row are rare.
+            zeros: if layout == Layout::Standard {
+                ZeroGroups::Compute
+            } else {
+                ZeroGroups::Skip
+            },
             epilogue,
             codes: vec![grid.zero(); padded_len + window.slack()],
             // One row of output pixels' windows and sums ([`QuantizedConv`]).
