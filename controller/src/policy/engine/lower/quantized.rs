@@ -379,7 +379,9 @@ impl Lowerer {
         let Ok(panels) = self.int8.lay_out(&rows, oc, inputs) else {
             return Ok(None);
         };
-        // Terms for a whole row of output pixels (a row of pooled outputs is shorter).
+        // Terms for a whole row of output pixels (a row of pooled outputs is shorter), as
+        // many as that row's sums: the size checked before anything that large is made.
+        elements(&[oc, out[1]])?;
         let epilogue = Self::epilogue(grid, &rows, inputs, &scales, bias.to_vec()).tiled(out[1]);
         let padded_len = elements(&[padded[0], padded[1], c])?;
         let out_buffer = self.buffer(elements(&[out[0], out[1], oc])?)?;
