@@ -359,16 +359,25 @@ macro_rules! products8 {
 /// named registers and the flags; no stack. Nothing runs for 0 groups.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! row_asm {
-    (skip, $products:ident, $step:literal, $bytes:expr, $vectors:expr, $groups:expr, $ones:expr, [$($s:ident),+]) => {
+    (skip, $($rest:tt)*) => {
+        row_asm!(@loop concat!(
+            "pxor {t}, {t}\n",
+            "pcmpeqb {t}, {xs}\n",
+            "pmovmskb {mask:e}, {t}\n",
+            "cmp {mask:e}, 0xffff\n",
+            "je 3f\n",
+        ), $($rest)*, mask = out(reg) _,)
+    };
+    (compute, $($rest:tt)*) => {
+        row_asm!(@loop "", $($rest)*,)
+    };
+    (@loop $test:expr, $products:ident, $step:literal, $bytes:expr, $vectors:expr, $groups:expr,
+        $ones:expr, [$($s:ident),+], $($extra:tt)*) => {
         if $groups > 0 {
             core::arch::asm!(
             "2:",
             "movdqu {xs}, xmmword ptr [{x}]",
-            "pxor {t}, {t}",
-            "pcmpeqb {t}, {xs}",
-            "pmovmskb {mask:e}, {t}",
-            "cmp {mask:e}, 0xffff",
-            "je 3f",
+            $test,
             $products!(),
             "3:",
             "add {x}, 16",
@@ -378,32 +387,11 @@ macro_rules! row_asm {
             x = inout(reg) $bytes => _,
             w = inout(reg) $vectors => _,
             n = inout(reg) $groups => _,
-            mask = out(reg) _,
             xs = out(xmm_reg) _,
             t = out(xmm_reg) _,
             ones = in(xmm_reg) $ones,
             $($s = inout(xmm_reg) $s,)+
-            options(readonly, nostack),
-            )
-        }
-    };
-    (compute, $products:ident, $step:literal, $bytes:expr, $vectors:expr, $groups:expr, $ones:expr, [$($s:ident),+]) => {
-        if $groups > 0 {
-            core::arch::asm!(
-            "2:",
-            "movdqu {xs}, xmmword ptr [{x}]",
-            $products!(),
-            "add {x}, 16",
-            concat!("add {w}, ", $step),
-            "dec {n}",
-            "jnz 2b",
-            x = inout(reg) $bytes => _,
-            w = inout(reg) $vectors => _,
-            n = inout(reg) $groups => _,
-            xs = out(xmm_reg) _,
-            t = out(xmm_reg) _,
-            ones = in(xmm_reg) $ones,
-            $($s = inout(xmm_reg) $s,)+
+            $($extra)*
             options(readonly, nostack),
             )
         }
@@ -418,20 +406,20 @@ macro_rules! row_asm {
 /// callgrind). The sum registers are left holding the maxima.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! merge_largest {
+    (@register $s:literal, $offset:literal) => {
+        concat!(
+            "movdqa {t}, {", $s, "}\n",
+            "pcmpgtd {t}, xmmword ptr [{m} + ", $offset, "]\n",
+            "pand {", $s, "}, {t}\n",
+            "pandn {t}, xmmword ptr [{m} + ", $offset, "]\n",
+            "por {", $s, "}, {t}\n",
+            "movdqa xmmword ptr [{m} + ", $offset, "], {", $s, "}\n",
+        )
+    };
     ($largest:expr, [$s0:ident, $s1:ident]) => {
         core::arch::asm!(
-            "movdqa {t}, {s0}",
-            "pcmpgtd {t}, xmmword ptr [{m} + 0]",
-            "pand {s0}, {t}",
-            "pandn {t}, xmmword ptr [{m} + 0]",
-            "por {s0}, {t}",
-            "movdqa xmmword ptr [{m} + 0], {s0}",
-            "movdqa {t}, {s1}",
-            "pcmpgtd {t}, xmmword ptr [{m} + 16]",
-            "pand {s1}, {t}",
-            "pandn {t}, xmmword ptr [{m} + 16]",
-            "por {s1}, {t}",
-            "movdqa xmmword ptr [{m} + 16], {s1}",
+            merge_largest!(@register "s0", "0"),
+            merge_largest!(@register "s1", "16"),
             m = in(reg) $largest,
             t = out(xmm_reg) _,
             s0 = inout(xmm_reg) $s0 => _,
@@ -441,30 +429,10 @@ macro_rules! merge_largest {
     };
     ($largest:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {
         core::arch::asm!(
-            "movdqa {t}, {s0}",
-            "pcmpgtd {t}, xmmword ptr [{m} + 0]",
-            "pand {s0}, {t}",
-            "pandn {t}, xmmword ptr [{m} + 0]",
-            "por {s0}, {t}",
-            "movdqa xmmword ptr [{m} + 0], {s0}",
-            "movdqa {t}, {s1}",
-            "pcmpgtd {t}, xmmword ptr [{m} + 16]",
-            "pand {s1}, {t}",
-            "pandn {t}, xmmword ptr [{m} + 16]",
-            "por {s1}, {t}",
-            "movdqa xmmword ptr [{m} + 16], {s1}",
-            "movdqa {t}, {s2}",
-            "pcmpgtd {t}, xmmword ptr [{m} + 32]",
-            "pand {s2}, {t}",
-            "pandn {t}, xmmword ptr [{m} + 32]",
-            "por {s2}, {t}",
-            "movdqa xmmword ptr [{m} + 32], {s2}",
-            "movdqa {t}, {s3}",
-            "pcmpgtd {t}, xmmword ptr [{m} + 48]",
-            "pand {s3}, {t}",
-            "pandn {t}, xmmword ptr [{m} + 48]",
-            "por {s3}, {t}",
-            "movdqa xmmword ptr [{m} + 48], {s3}",
+            merge_largest!(@register "s0", "0"),
+            merge_largest!(@register "s1", "16"),
+            merge_largest!(@register "s2", "32"),
+            merge_largest!(@register "s3", "48"),
             m = in(reg) $largest,
             t = out(xmm_reg) _,
             s0 = inout(xmm_reg) $s0 => _,
