@@ -126,12 +126,15 @@ pub fn downscale_portable<const FW: usize, const FH: usize, const TW: usize, con
 }
 
 /// [`downscale`] with SSE2, eight thumbnail pixels (a 64-byte stretch of four frame rows) at a
-/// time: per row and 16 bytes (two blocks' rows) one load, one mask keeping the Y bytes and
-/// one `psadbw` against zero, which adds each block row's four Y values into its 64-bit half;
-/// four rows added, then the rounded means of eight blocks put in order and packed to bytes.
-/// About ten instructions a thumbnail pixel where the 64-bit integer code takes about twenty
-/// on the V5's 32-bit registers (callgrind, `cross/count v5 --tick`). Why intrinsics: no crate
-/// downscales YUYV luma by 4x4 means, and the tick's budget is the point of the module.
+/// time, in 16-bit lanes throughout: per 16 bytes (two blocks' rows) the four rows are loaded,
+/// masked to their Y bytes and added lane-wise (column sums, at most 4 x 255), one `pmaddwd`
+/// against ones adds neighbouring columns into 32-bit lanes, and two packs and one more
+/// `pmaddwd` finish the eight block sums (at most 16 x 255, exact in 16 bits), which are
+/// rounded, shifted and packed to bytes. About seven instructions a thumbnail pixel on the
+/// V5's build (`cross/count v5 --tick`), where the block-row `psadbw` variant before it took
+/// about thirteen and the 64-bit integer code about twenty on 32-bit registers. Why
+/// intrinsics: no crate downscales YUYV luma by 4x4 means, and the tick's budget is the point
+/// of the module.
 #[cfg(all(
     any(target_arch = "x86", target_arch = "x86_64"),
     target_feature = "sse2"
@@ -154,34 +157,44 @@ fn downscale_sse2<const FW: usize, const FH: usize, const TW: usize, const TH: u
         assert!(TW.is_multiple_of(8), "eight thumbnail pixels a step");
     }
     let luma = _mm_set1_epi16(0x00ff);
-    let half = _mm_set1_epi32(8);
+    let ones = _mm_set1_epi16(1);
+    let half = _mm_set1_epi16(8);
     let block_rows = frame.rows().chunks_exact(BLOCK);
     for (out_row, block_row) in out.pixels.iter_mut().zip(block_rows) {
-        // Each frame row is 2 x FW = 8 x TW bytes: TW / 8 stretches of 64.
-        let rows: [&[u8]; BLOCK] = core::array::from_fn(|k| block_row[k].as_flattened());
-        for (stretch, pixels) in out_row.chunks_exact_mut(8).enumerate() {
-            let mut sums = [_mm_setzero_si128(); 4];
-            for (part, sum) in sums.iter_mut().enumerate() {
-                for row in rows {
-                    // In bounds: the stretch's last byte is 64 x (TW / 8) - 1 < 8 x TW.
-                    let bytes = &row[64 * stretch + 16 * part..][..16];
-                    // SAFETY: `bytes` is 16 bytes long, read unaligned.
-                    let v = unsafe { _mm_loadu_si128(bytes.as_ptr().cast::<__m128i>()) };
-                    let rows_sum = _mm_sad_epu8(_mm_and_si128(v, luma), _mm_setzero_si128());
-                    *sum = _mm_add_epi32(*sum, rows_sum);
+        // Each frame row is 2 x FW = 8 x TW bytes: TW / 8 stretches of 64, read through
+        // pointers stepped 64 bytes a stretch (the row lengths are the const assertion's).
+        let mut rows: [*const u8; BLOCK] =
+            core::array::from_fn(|k| block_row[k].as_flattened().as_ptr());
+        let mut pixels = out_row.as_mut_ptr();
+        for _ in 0..TW / 8 {
+            // The column sums of 16 bytes of the four rows, neighbours added: 32-bit lanes
+            // [a01, a23, b01, b23] for the two blocks a and b those bytes cover.
+            let pairs = |offset: usize| {
+                // SAFETY: offset + 16 <= 64 and the stretch lies inside each row (above).
+                let load = |k: usize| unsafe {
+                    _mm_and_si128(_mm_loadu_si128(rows[k].add(offset).cast::<__m128i>()), luma)
+                };
+                let columns = _mm_add_epi16(
+                    _mm_add_epi16(load(0), load(1)),
+                    _mm_add_epi16(load(2), load(3)),
+                );
+                _mm_madd_epi16(columns, ones)
+            };
+            // [a01, a23, b01, b23, c01, c23, d01, d23] in 16 bits, then [a, b, c, d] in 32.
+            let low = _mm_madd_epi16(_mm_packs_epi32(pairs(0), pairs(16)), ones);
+            let high = _mm_madd_epi16(_mm_packs_epi32(pairs(32), pairs(48)), ones);
+            let sums = _mm_packs_epi32(low, high);
+            let means = _mm_srli_epi16::<4>(_mm_add_epi16(sums, half));
+            let bytes = _mm_packus_epi16(means, means);
+            // SAFETY: eight pixels of the row remain (TW / 8 steps of eight); the store
+            // writes the low 8 bytes. The row pointers step to the next 64-byte stretch.
+            unsafe {
+                _mm_storel_epi64(pixels.cast::<__m128i>(), bytes);
+                pixels = pixels.add(8);
+                for row in &mut rows {
+                    *row = row.add(64);
                 }
             }
-            // sums[p] in 32-bit lanes: [block 2p, 0, block 2p + 1, 0] (each at most 16 x 255).
-            let low = _mm_or_si128(sums[0], _mm_slli_si128::<4>(sums[1]));
-            let high = _mm_or_si128(sums[2], _mm_slli_si128::<4>(sums[3]));
-            // [0, 2, 1, 3] -> [block 0, 1, 2, 3] and [4, 5, 6, 7].
-            let low = _mm_shuffle_epi32::<0b11_01_10_00>(low);
-            let high = _mm_shuffle_epi32::<0b11_01_10_00>(high);
-            let mean = |sums| _mm_srli_epi32::<4>(_mm_add_epi32(sums, half));
-            let words = _mm_packs_epi32(mean(low), mean(high));
-            let bytes = _mm_packus_epi16(words, words);
-            // SAFETY: `pixels` is 8 bytes (an exact chunk); the store writes the low 8 bytes.
-            unsafe { _mm_storel_epi64(pixels.as_mut_ptr().cast::<__m128i>(), bytes) };
         }
     }
 }
@@ -268,6 +281,17 @@ mod tests {
             downscale(&frame_from::<640, 480>(&bytes), &mut thumbnail);
             prop_assert!(thumbnail.as_bytes().iter().all(|&p| p == luma));
         }
+    }
+
+    #[test]
+    fn the_largest_block_sums_do_not_saturate() {
+        // Every luma 255: each block sums to 16 x 255, the most any lane of the packs holds.
+        let bytes: Vec<u8> = (0..TopFrame::PIXEL_BYTES)
+            .map(|i| if i % 2 == 0 { 255 } else { 0 })
+            .collect();
+        let mut thumbnail = TopThumbnail::black();
+        downscale(&frame_from::<640, 480>(&bytes), &mut thumbnail);
+        assert!(thumbnail.as_bytes().iter().all(|&p| p == 255));
     }
 
     #[test]

@@ -947,10 +947,12 @@ pub(crate) fn code_run(grid: Grid, values: &[f32], codes: &mut [u8]) {
 /// `[padded_h][padded_w][c]` (the border holds the zero point, the integer of 0.0). A window
 /// is copied out of the map into a run of [`Self::padded_len`] bytes, kernel row after kernel
 /// row, where the weights `[ky][kx][c]` meet it (zero weights after). Rows of at most 8 bytes
-/// (the cameras' one-channel 5x5 layers: 5) are copied with one 8-byte load and store each:
-/// the extra bytes are overwritten by the next row, the last row's lie inside the run and
-/// meet zero weights (a `memcpy` call per 5-byte row was more than the V5's first layer
-/// could afford); longer rows with one slice copy each.
+/// (the cameras' one-channel 5x5 layers: 5) are copied with one 8-byte load and store each,
+/// longer rows with 16-byte loads and stores (the narrow CNN's 20- and 40-byte rows: two and
+/// three): the extra bytes are overwritten by the next row, the last row's lie inside the run
+/// and meet zero weights, and the map's buffer holds the bytes the bottom-right window's last
+/// row reads past the map ([`Self::slack`]). A `memcpy` call per row was more than the V5
+/// could afford: about 50 instructions a 40-byte row with the call, 10 for its three moves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Window {
     pub padded_width: usize,
@@ -963,6 +965,8 @@ pub(crate) struct Window {
 
 /// Rows up to this many bytes are copied 8 bytes at a time.
 const SHORT_ROW: usize = 8;
+/// Longer rows are copied this many bytes at a time.
+const CHUNK: usize = 16;
 
 impl Window {
     pub(crate) fn new(
@@ -987,13 +991,22 @@ impl Window {
         self.kernel[1] * self.channels
     }
 
-    /// The bytes a window's copy spans: its rows, and the last short row's 8-byte store.
-    fn extent(&self) -> usize {
-        let rows = self.kernel[0] * self.row();
-        if self.row() <= SHORT_ROW && self.kernel[0] > 0 {
-            rows.max((self.kernel[0] - 1) * self.row() + SHORT_ROW)
+    /// The bytes one row's copy moves: 8 for a short row, else the row rounded up to whole
+    /// 16-byte chunks.
+    fn copied(&self) -> usize {
+        let row = self.row();
+        if row <= SHORT_ROW {
+            SHORT_ROW
         } else {
-            rows
+            row.div_ceil(CHUNK) * CHUNK
+        }
+    }
+
+    /// The bytes a window's copy spans: its rows, the last one's copy whole.
+    fn extent(&self) -> usize {
+        match self.kernel[0] {
+            0 => 0,
+            kh => (kh - 1) * self.row() + self.copied(),
         }
     }
 
@@ -1003,14 +1016,10 @@ impl Window {
         self.len
     }
 
-    /// How many bytes past the map a bottom-right window's last short row reads (its 8-byte
-    /// load): the codes buffer holds them too.
+    /// How many bytes past the map a bottom-right window's last row reads (its last load
+    /// whole): the codes buffer holds them too.
     pub(crate) fn slack(&self) -> usize {
-        if self.row() <= SHORT_ROW {
-            SHORT_ROW - self.row()
-        } else {
-            0
-        }
+        self.copied() - self.row()
     }
 
     /// `rows`, `[out][ky][kx * c]`, laid out as a copied window is: each output's
@@ -1059,9 +1068,9 @@ impl Window {
             return;
         }
         let pitch = self.padded_width * c;
-        // The last block's last window's last row ends furthest into `codes` (8 bytes where
-        // short).
-        let copied = row.max(SHORT_ROW);
+        // The last block's last window's last row ends furthest into `codes` (its last load
+        // whole).
+        let copied = self.copied();
         let end = (y + rows - 1)
             .checked_mul(self.stride[0])
             .and_then(|top| top.checked_add(kh - 1))
@@ -1097,68 +1106,150 @@ impl Window {
                     .map(move |dx| first + cell * block_step + dy * window_down + dx * window_right)
             })
         });
-        // SAFETY (both loops): row `ky` of each window reads `copied` bytes from
+        // SAFETY (every copy below): row `ky` of each window reads `copied` bytes from
         // `start + ky * pitch`, at most the last window's last row's end, inside `codes`
         // (checked above), and writes them `ky * row` bytes into the window's `len` bytes
         // of `out`, the windows one after the other (all inside `out`, checked above).
         if row > SHORT_ROW {
-            for (k, start) in windows.enumerate() {
-                for ky in 0..kh {
-                    unsafe {
-                        core::ptr::copy_nonoverlapping(
-                            source.add(start + ky * pitch),
-                            target.add(k * len + ky * row),
-                            row,
-                        );
-                    }
+            // Whole 16-byte chunks; the rows of the CNNs' second layers, specialised.
+            let rows = (windows, kh, [pitch, row, len], (source, target));
+            // SAFETY: the checks above (`long_rows`' contract).
+            unsafe {
+                match copied / CHUNK {
+                    2 => long_rows(rows, |from, to| copy_chunks::<2>(from, to)),
+                    3 => long_rows(rows, |from, to| copy_chunks::<3>(from, to)),
+                    chunks => long_rows(rows, |from, to| {
+                        for k in 0..chunks {
+                            copy_chunks::<1>(from.add(k * CHUNK), to.add(k * CHUNK));
+                        }
+                    }),
                 }
             }
             return;
         }
-        // On i686 through an SSE2 register (`movq`, a load and a store): as `[u8; 8]` the
-        // compiler moved the 8 bytes in two 32-bit halves, four instructions a row (the V5's
-        // first layers copy 30,000 short rows a tick; callgrind).
-        #[cfg(target_arch = "x86")]
-        let copy = |from: usize, to: usize| unsafe {
-            _mm_storel_epi64(
-                target.add(to).cast::<__m128i>(),
-                _mm_loadl_epi64(source.add(from).cast::<__m128i>()),
-            );
-        };
-        #[cfg(not(target_arch = "x86"))]
-        let copy = |from: usize, to: usize| unsafe {
-            target
-                .add(to)
-                .cast::<[u8; SHORT_ROW]>()
-                .write_unaligned(source.add(from).cast::<[u8; SHORT_ROW]>().read_unaligned());
-        };
         if kh == 5 {
             // The CNNs' 5 x 5 kernels, unrolled: five loads and five stores a window, the
-            // offsets stepped, not multiplied out again for each window from the iterator's
-            // indices (about 30 instructions a window on the V5 that way, callgrind).
-            let (down, across) = (3 * pitch, 3 * row);
-            let mut to = 0;
-            for cell in 0..cells {
-                for dy in 0..rows {
-                    let mut from = first + cell * block_step + dy * window_down;
-                    for _ in 0..columns {
-                        copy(from, to);
-                        copy(from + pitch, to + row);
-                        copy(from + 2 * pitch, to + 2 * row);
-                        copy(from + down, to + across);
-                        copy(from + down + pitch, to + across + row);
-                        from += window_right;
-                        to += len;
+            // pointers stepped, not multiplied out again for each window from the iterator's
+            // indices (about 30 instructions a window on the V5 that way, callgrind), and the
+            // cameras' one-channel rows (5 bytes, windows of 32) with constant offsets: the
+            // V5's eight registers then hold the loop (22 instructions a window with the row
+            // and the window's length in registers too, 14 without; callgrind).
+            macro_rules! five_rows {
+                ($row:expr, $len:expr) => {{
+                    let (row, len, three) = ($row, $len, 3 * pitch);
+                    let mut to = target;
+                    for cell in 0..cells {
+                        for dy in 0..rows {
+                            let mut from =
+                                unsafe { source.add(first + cell * block_step + dy * window_down) };
+                            for _ in 0..columns {
+                                unsafe {
+                                    copy_short(from, to);
+                                    copy_short(from.add(pitch), to.add(row));
+                                    copy_short(from.add(2 * pitch), to.add(2 * row));
+                                    copy_short(from.add(three), to.add(3 * row));
+                                    copy_short(from.add(three + pitch), to.add(4 * row));
+                                    from = from.add(window_right);
+                                    to = to.add(len);
+                                }
+                            }
+                        }
                     }
-                }
+                }};
+            }
+            if row == 5 && len == 32 {
+                five_rows!(5, 32);
+            } else {
+                five_rows!(row, len);
             }
         } else {
-            for (k, start) in windows.enumerate() {
-                for ky in 0..kh {
-                    copy(start + ky * pitch, k * len + ky * row);
-                }
-            }
+            // SAFETY: the checks above (`long_rows`' contract).
+            unsafe {
+                long_rows(
+                    (windows, kh, [pitch, row, len], (source, target)),
+                    |from, to| copy_short(from, to),
+                )
+            };
         }
+    }
+}
+
+/// Each window's `kh` rows through `copy_row(from, to)`: from `pitch` bytes apart in the map
+/// to `row` bytes apart in the window's `len`, the windows' starts in the map from `windows`.
+///
+/// # Safety
+/// Inside [`Window::gather_cells`], whose checks bound every row `copy_row` is given, and
+/// `copy_row` may read and write that row's copy (its `copied` bytes) and no more.
+#[inline(always)]
+unsafe fn long_rows(
+    (windows, kh, [pitch, row, len], (source, target)): (
+        impl Iterator<Item = usize>,
+        usize,
+        [usize; 3],
+        (*const u8, *mut u8),
+    ),
+    copy_row: impl Fn(*const u8, *mut u8),
+) {
+    for (k, start) in windows.enumerate() {
+        for ky in 0..kh {
+            // SAFETY: the caller's checks (the window's row `ky`).
+            let (from, to) = unsafe {
+                (
+                    source.add(start + ky * pitch),
+                    target.add(k * len + ky * row),
+                )
+            };
+            copy_row(from, to);
+        }
+    }
+}
+
+/// Copies `N` 16-byte chunks from `from` to `to` (unaligned).
+///
+/// # Safety
+/// `16 * N` bytes readable at `from` and writable at `to`.
+#[inline(always)]
+unsafe fn copy_chunks<const N: usize>(from: *const u8, to: *mut u8) {
+    for k in 0..N {
+        // SAFETY: the caller's contract; SSE2 is part of every x86 target this crate builds
+        // for (i686, x86-64).
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        unsafe {
+            _mm_storeu_si128(
+                to.add(k * CHUNK).cast::<__m128i>(),
+                _mm_loadu_si128(from.add(k * CHUNK).cast::<__m128i>()),
+            );
+        }
+        #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+        unsafe {
+            to.add(k * CHUNK)
+                .cast::<[u8; CHUNK]>()
+                .write_unaligned(from.add(k * CHUNK).cast::<[u8; CHUNK]>().read_unaligned());
+        }
+    }
+}
+
+/// Copies one short row's 8 bytes from `from` to `to` (unaligned). On i686 through an SSE2
+/// register (`movq`, a load and a store): as `[u8; 8]` the compiler moved the 8 bytes in two
+/// 32-bit halves, four instructions a row (the V5's first layers copy 30,000 short rows a
+/// tick; callgrind).
+///
+/// # Safety
+/// 8 bytes readable at `from` and writable at `to`.
+#[inline(always)]
+unsafe fn copy_short(from: *const u8, to: *mut u8) {
+    // SAFETY: the caller's contract; SSE2 as above.
+    #[cfg(target_arch = "x86")]
+    unsafe {
+        _mm_storel_epi64(
+            to.cast::<__m128i>(),
+            _mm_loadl_epi64(from.cast::<__m128i>()),
+        );
+    }
+    #[cfg(not(target_arch = "x86"))]
+    unsafe {
+        to.cast::<[u8; SHORT_ROW]>()
+            .write_unaligned(from.cast::<[u8; SHORT_ROW]>().read_unaligned());
     }
 }
 
@@ -1541,6 +1632,11 @@ mod tests {
             (9, 11, 1, 16, [5, 5], [2, 2]),
             (7, 7, 8, 33, [3, 3], [1, 1]),
             (8, 8, 1, 4, [4, 4], [1, 1]),
+            // The narrow CNN's second layers: rows of 40 and 20 bytes (three and two
+            // 16-byte chunks), and a row of 72 (five chunks, the general loop).
+            (11, 13, 8, 16, [5, 5], [2, 2]),
+            (9, 9, 4, 8, [5, 5], [2, 2]),
+            (7, 9, 24, 6, [3, 3], [1, 1]),
         ] {
             let window = Window::new(pw, c, [kh, kw], stride);
             assert!(window.padded_len().is_multiple_of(GROUP));
