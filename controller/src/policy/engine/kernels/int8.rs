@@ -64,7 +64,7 @@ struct WeightBlock([i8; 64]);
 /// Int8 weights `[panel][quad][width][4]`; inputs are taken in whole groups of sixteen, the
 /// last one padded with zero weights, and outputs in panels of `width`, the last padded with
 /// zero columns. Every quad of a panel of 16 or 32 starts on a 64-byte boundary (of 8, on a
-/// 32-byte one; every panel on a 64-byte one).
+/// 32-byte one; of 4, on a 16-byte one; every panel on a 64-byte one).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(crate) struct QuadPanels {
     blocks: Vec<WeightBlock>,
@@ -345,8 +345,35 @@ macro_rules! products8 {
     };
 }
 
-/// One row of `$groups` groups into the sums of a panel (`products16` into four registers or
-/// `products8` into two), the whole loop in assembly (legacy SSE encoding, for the Atoms):
+/// [`products16`] for a panel of 4 outputs in one register `{s0}`: 16 instructions a group,
+/// where an 8-wide panel of a 4-output layer (the bottom camera's first layer in the narrow
+/// CNN) spends 32, half on zero weights.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+macro_rules! products4 {
+    () => {
+        concat!(
+            "pshufd {t}, {xs}, 0x00\n",
+            "pmaddubsw {t}, xmmword ptr [{w} + 0]\n",
+            "pmaddwd {t}, {ones}\n",
+            "paddd {s0}, {t}\n",
+            "pshufd {t}, {xs}, 0x55\n",
+            "pmaddubsw {t}, xmmword ptr [{w} + 16]\n",
+            "pmaddwd {t}, {ones}\n",
+            "paddd {s0}, {t}\n",
+            "pshufd {t}, {xs}, 0xaa\n",
+            "pmaddubsw {t}, xmmword ptr [{w} + 32]\n",
+            "pmaddwd {t}, {ones}\n",
+            "paddd {s0}, {t}\n",
+            "pshufd {t}, {xs}, 0xff\n",
+            "pmaddubsw {t}, xmmword ptr [{w} + 48]\n",
+            "pmaddwd {t}, {ones}\n",
+            "paddd {s0}, {t}\n",
+        )
+    };
+}
+
+/// One row of `$groups` groups into the sums of a panel (`products16` into four registers,
+/// `products8` into two, `products4` into one), the whole loop in assembly (legacy SSE encoding, for the Atoms):
 /// per group one unaligned load, with `skip` a test that skips sixteen zero inputs (six
 /// instructions that pay only where such groups are common: after ReLU and max-pooling, not
 /// in a camera's pixels), then the products. Why assembly: on the V5's eight registers the
@@ -414,6 +441,15 @@ macro_rules! merge_largest {
             "pandn {t}, xmmword ptr [{m} + ", $offset, "]\n",
             "por {", $s, "}, {t}\n",
             "movdqa xmmword ptr [{m} + ", $offset, "], {", $s, "}\n",
+        )
+    };
+    ($largest:expr, [$s0:ident]) => {
+        core::arch::asm!(
+            merge_largest!(@register "s0", "0"),
+            m = in(reg) $largest,
+            t = out(xmm_reg) _,
+            s0 = inout(xmm_reg) $s0 => _,
+            options(nostack, preserves_flags),
         )
     };
     ($largest:expr, [$s0:ident, $s1:ident]) => {
@@ -562,6 +598,44 @@ pub(crate) unsafe fn largest_ssse3_8(
             let row = row!(compute);
             // SAFETY: the caller's contract (SSSE3, 8 wide); `ssse3_panels` checks the layout.
             unsafe { ssse3_panels::<8, 2>(x, weights, acc, row) }
+        }
+    }
+}
+
+/// [`largest_ssse3`] for layers of at most 4 outputs: one panel of 4 in one register
+/// ([`products4`]).
+///
+/// # Safety
+/// The CPU must have SSSE3; `weights.width()` must be 4.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[target_feature(enable = "ssse3")]
+pub(crate) unsafe fn largest_ssse3_4(
+    x: &[u8],
+    weights: &QuadPanels,
+    acc: &mut [i32],
+    zeros: ZeroGroups,
+) {
+    let ones = _mm_set1_epi16(1);
+    // SAFETY: as in `largest_ssse3`, with groups of 4 vectors and one maximum.
+    macro_rules! row {
+        ($zeros:ident) => {
+            |inputs: *const u8, vectors: *const __m128i, groups: usize, largest: *mut __m128i| unsafe {
+                let mut s0 = _mm_setzero_si128();
+                row_asm!($zeros, products4, "64", inputs, vectors, groups, ones, [s0]);
+                merge_largest!(largest, [s0]);
+            }
+        };
+    }
+    match zeros {
+        ZeroGroups::Skip => {
+            let row = row!(skip);
+            // SAFETY: the caller's contract (SSSE3, 4 wide); `ssse3_panels` checks the layout.
+            unsafe { ssse3_panels::<4, 1>(x, weights, acc, row) }
+        }
+        ZeroGroups::Compute => {
+            let row = row!(compute);
+            // SAFETY: the caller's contract (SSSE3, 4 wide); `ssse3_panels` checks the layout.
+            unsafe { ssse3_panels::<4, 1>(x, weights, acc, row) }
         }
     }
 }
@@ -856,7 +930,7 @@ impl Int8Kernel {
     /// `rows`, `[out][in]`, laid out for this kernel: panels of 16 outputs, or on AVX2
     /// panels of 32 where the layer has more than 16 outputs and [`QuadPanels::pairs`]
     /// where it has at most 16 (a 32-wide panel of a 16-output layer would be half zeros),
-    /// and on SSSE3 one panel of 8 where it has at most 8.
+    /// and on SSSE3 one panel of 8 where it has at most 8 (of 4 where at most 4).
     pub(crate) fn lay_out(
         self,
         rows: &[i8],
@@ -866,6 +940,7 @@ impl Int8Kernel {
         match self.0 {
             Kind::Avx2 if outputs > 16 => QuadPanels::new(rows, outputs, inputs, 32),
             Kind::Avx2 => QuadPanels::pairs(rows, outputs, inputs),
+            Kind::Ssse3 if outputs <= 4 => QuadPanels::new(rows, outputs, inputs, 4),
             Kind::Ssse3 if outputs <= 8 => QuadPanels::new(rows, outputs, inputs, 8),
             _ => QuadPanels::new(rows, outputs, inputs, 16),
         }
@@ -887,6 +962,9 @@ impl Int8Kernel {
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; layout checked.
             Kind::Ssse3 if weights.width == 8 => unsafe { largest_ssse3_8(x, weights, acc, zeros) },
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: as above; 4 wide.
+            Kind::Ssse3 if weights.width == 4 => unsafe { largest_ssse3_4(x, weights, acc, zeros) },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: as above; 16 wide.
             Kind::Ssse3 => unsafe { largest_ssse3(x, weights, acc, zeros) },
@@ -1327,6 +1405,12 @@ mod tests {
                     // SAFETY: SSSE3 detected; width 8.
                     unsafe { largest_ssse3_8(&two_cells, &weights, &mut acc, zeros) };
                     results.push((format!("ssse3, panels of 8, {zeros:?}"), acc));
+                    // Panels of 4, as for layers of at most 4 outputs.
+                    let weights = QuadPanels::new(rows, outputs, inputs, 4).expect("in range");
+                    let mut acc = vec![0; 2 * outputs];
+                    // SAFETY: SSSE3 detected; width 4.
+                    unsafe { largest_ssse3_4(&two_cells, &weights, &mut acc, zeros) };
+                    results.push((format!("ssse3, panels of 4, {zeros:?}"), acc));
                 }
                 if std::arch::is_x86_feature_detected!("avx2") {
                     let weights = QuadPanels::new(rows, outputs, inputs, 32).expect("in range");
