@@ -24,6 +24,13 @@ demonstrations and exports a model directory the controller loads.
   the policy visited) to the training rows; validation stays on `--dataset`'s held-out
   episodes. `--init-from CHECKPOINT|MODEL` starts from another run's kept weights, or from a
   shipped model's (dribble_models.shipped_weights).
+- Distillation (beyond the paper): `--distill-from MODEL` (a shipped one-network float CNN
+  trained on the same teacher) replaces every training row's label with the command that
+  model sends for the row's images (clamped as the controller clamps), so a smaller network
+  (`--filters`) learns the shipped network's function rather than the teacher's commands:
+  where the images do not say which way the teacher turned, the shipped network has already
+  settled on one answer per image, where the teacher's labels average to none. Validation,
+  the checkpoint choice and every reported error stay against the teacher's labels.
 - Device: `--device auto` (the default) trains on a CUDA GPU where PyTorch sees one, else on
   the CPU; the manifest's notes say which. On a GPU cuDNN and cuBLAS run their deterministic
   algorithms, so a seed gives the same model again on the same GPU, but not the CPU's model
@@ -287,6 +294,26 @@ class Rows:
         )
 
 
+def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str = "cpu", chunk: int = 512) -> np.ndarray:
+    """The commands the shipped float CNN at `model_path` sends for each of `rows`' images:
+    the labels of `--distill-from`."""
+    if not is_shipped_model(model_path):
+        raise DatasetError(f"--distill-from {model_path}: not a shipped model (a directory with policy.toml)")
+    teacher = CNN(PAPER_FILTERS)
+    try:
+        load_shipped_weights(teacher, model_path, "cnn")
+    except ShippedWeightsError as error:
+        raise DatasetError(f"--distill-from: {error}") from error
+    teacher.to(device).eval()
+    out = np.empty_like(rows.command)
+    with torch.no_grad():
+        for start in range(0, len(out), chunk):
+            end = min(start + chunk, len(out))
+            top, bottom = to_input(rows.top[start:end], device), to_input(rows.bottom[start:end], device)
+            out[start:end] = sent_commands(teacher(top, bottom).cpu().numpy())
+    return out
+
+
 def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
     """A seeded random `fraction` of `rows` (indices), in batches."""
     count = max(1, int(round(len(rows) * fraction)))
@@ -373,6 +400,10 @@ class Training:
         torch.manual_seed(args.seed)
         self.augment = Augment() if args.augment else None
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
+        if args.distill_from is not None:
+            if self.kind != "cnn" or args.modes != 1:
+                raise DatasetError("--distill-from trains a one-output CNN (--kind cnn, --modes 1)")
+            self.rows.command = distilled_commands(args.distill_from, self.rows, self.device)
         if self.kind == "cnn":
             self.model = CNN(args.filters) if args.modes == 1 else ModalCNN(args.modes, args.filters)
         elif self.kind == "rcnn":
@@ -447,6 +478,7 @@ class Training:
             **({"filters": a.filters.text()} if a.filters != PAPER_FILTERS else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
             **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
+            **({"distill_from": start_sha256(a.distill_from)} if a.distill_from is not None else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
 
@@ -710,6 +742,8 @@ def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> st
         parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:
         parts.append(f"started from the kept weights of {args.init_from} (sha256 {start_sha256(args.init_from)[:12]})")
+    if args.distill_from is not None:
+        parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) for each training row, validated on the teacher's")
     if args.features_from is not None:
         how = "kept fixed" if args.freeze_features else "trained on"
         parts.append(f"convolutions from the CNN {args.features_from} (sha256 {start_sha256(args.features_from)[:12]}), {how}")
@@ -731,6 +765,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--add-dataset", type=Path, action="append", default=[], help="more training data, every episode of it (DAgger's policy-driven, expert-labelled rounds); repeatable")
     parser.add_argument("--cut-stalls", type=float, metavar="SECONDS", help="in the --add-dataset rounds, drop the rows of a stall (robot and ball still) after its first SECONDS (dribble_models.stalls explains why)")
     parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote), or from a shipped one-network float model (its directory or policy.toml: dribble_models.shipped_weights), instead of random ones")
+    parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation stays on the teacher's labels)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")

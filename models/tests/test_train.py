@@ -14,9 +14,16 @@ import torch
 
 from dribble_models import dataset as ds
 from dribble_models.networks import RCNN, ModalCNN, RCNNStep
+from dribble_models.networks import CNN, PAPER_FILTERS
+from dribble_models.shipped_weights import load_shipped_weights
 from dribble_models.train import (
+    Rows,
+    Training,
     gating_features,
     main,
+    parse_args,
+    sent_commands,
+    start_sha256,
     predict_rcnn,
     rcnn_forward_windows,
     row_errors,
@@ -253,3 +260,31 @@ def test_an_rcnn_started_from_a_cnns_convolutions_keeps_them_when_frozen(tmp_pat
     assert result.returncode == 0, result.stdout + result.stderr
     robot = json.loads((tmp_path / "robot.json").read_text())
     assert abs(robot["error"] - trainer["test"]["error"]) < 1e-4
+
+
+def test_a_distilled_cnn_learns_the_shipped_networks_commands_not_the_teachers(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    # The "shipped" model: a paper-width CNN trained on the teacher's labels.
+    big = tmp_path / "big"
+    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    trainer = Training(parse_args([*common, "--filters", "8,16,4,8", "--out", str(tmp_path / "x"), "--distill-from", str(big)]), ds.load(train))
+    # Its labels are what the big network sends for each training row (episode 1: seed 2 is
+    # held out), clamped as the controller clamps, and no longer the teacher's.
+    rows = Rows.of(trainer.train_episodes)
+    net = CNN(PAPER_FILTERS)
+    load_shipped_weights(net, big, "cnn")
+    with torch.no_grad():
+        expected = sent_commands(net.eval()(to_input(rows.top), to_input(rows.bottom)).numpy())
+    np.testing.assert_allclose(trainer.rows.command, expected, atol=1e-6)
+    assert not np.allclose(trainer.rows.command, rows.command)
+    # The run says so, names the model by hash, and resumes only as the same run.
+    small = tmp_path / "small"
+    argv = [*common, "--filters", "8,16,4,8", "--out", str(small), "--checkpoint-dir", str(tmp_path / "c-small"), "--distill-from", str(big)]
+    assert main(argv) == 0
+    assert "distilled: trained on the commands of" in (small / "policy.toml").read_text()
+    identity = torch.load(tmp_path / "c-small" / "cnn.pt", weights_only=False)["identity"]
+    assert identity["distill_from"] == start_sha256(big)
+    # Not a model to distil from, or not a kind that can be: refused with a reason.
+    assert main([*common, "--out", str(tmp_path / "y"), "--checkpoint-dir", str(tmp_path / "c-y"), "--distill-from", str(train)]) == 2
+    assert main(["--kind", "hcnn", *common[2:], "--out", str(tmp_path / "z"), "--checkpoint-dir", str(tmp_path / "c-z"), "--distill-from", str(big)]) == 2
