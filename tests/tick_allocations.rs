@@ -183,6 +183,8 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
         "fixtures/hcnn",
         "fixtures/rcnn",
         "policy/cnn-modal",
+        // Its 4-output layer runs SSSE3's panels of 4 (the narrow network's V5 tick).
+        "policy/cnn-narrow-observable-int8",
         shipped.as_str(),
     ] {
         let manifest = models.join(name).join("policy.toml");
