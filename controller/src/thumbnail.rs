@@ -130,9 +130,10 @@ pub fn downscale_portable<const FW: usize, const FH: usize, const TW: usize, con
 /// masked to their Y bytes and added lane-wise (column sums, at most 4 x 255), one `pmaddwd`
 /// against ones adds neighbouring columns into 32-bit lanes, and two packs and one more
 /// `pmaddwd` finish the eight block sums (at most 16 x 255, exact in 16 bits), which are
-/// rounded, shifted and packed to bytes. About seven instructions a thumbnail pixel on the
-/// V5's build (`cross/count v5 --tick`), where the block-row `psadbw` variant before it took
-/// about thirteen and the 64-bit integer code about twenty on 32-bit registers. Why
+/// rounded, shifted and packed to bytes. About 8.4 instructions a thumbnail pixel on the
+/// V5's build (callgrind, `forward --whole-tick`), where the block-row `psadbw` variant
+/// before it took about thirteen and the 64-bit integer code about twenty on 32-bit
+/// registers. Why
 /// intrinsics: no crate downscales YUYV luma by 4x4 means, and the tick's budget is the point
 /// of the module.
 #[cfg(all(

@@ -1211,7 +1211,7 @@ impl Window {
             // indices (about 30 instructions a window on the V5 that way, callgrind), and the
             // cameras' one-channel rows (5 bytes, windows of 32) with constant offsets: the
             // V5's eight registers then hold the loop (22 instructions a window with the row
-            // and the window's length in registers too, 14 without; callgrind).
+            // and the window's length in registers too, 19 without; callgrind).
             macro_rules! five_rows {
                 ($row:expr, $len:expr) => {{
                     let (row, len, three) = ($row, $len, 3 * pitch);
