@@ -159,7 +159,7 @@ def failure_analysis(rows: list[dict]) -> str:
 #: models/selection, so it is no candidate for the shipped row).
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
         "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable",
-        "cnn-narrow-observable", "dagger-observable", "dagger-rcnn-memory-observable",
+        "cnn-narrow-observable", "cnn-narrow-distilled-observable", "dagger-observable", "dagger-rcnn-memory-observable",
         "cnn-orbit", "dagger-orbit",
         "dagger-observable-int8")
 
