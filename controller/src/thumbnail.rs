@@ -133,9 +133,8 @@ pub fn downscale_portable<const FW: usize, const FH: usize, const TW: usize, con
 /// rounded, shifted and packed to bytes. About 8.4 instructions a thumbnail pixel on the
 /// V5's build (callgrind, `forward --whole-tick`), where the block-row `psadbw` variant
 /// before it took about thirteen and the 64-bit integer code about twenty on 32-bit
-/// registers. Why
-/// intrinsics: no crate downscales YUYV luma by 4x4 means, and the tick's budget is the point
-/// of the module.
+/// registers. Why intrinsics: no crate downscales YUYV luma by 4x4 means, and the tick's
+/// budget is the point of the module.
 #[cfg(all(
     any(target_arch = "x86", target_arch = "x86_64"),
     target_feature = "sse2"

@@ -495,150 +495,77 @@ fn write_sums<const N: usize>(out: &mut [i32], store: impl FnOnce(*mut i32)) {
     }
 }
 
-/// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`) on 128-bit vectors, panels of
-/// 16 outputs held in four registers. The inputs are read a group (sixteen bytes) at a time:
-/// one load, with [`ZeroGroups::Skip`] one test that skips sixteen zero inputs, and `pshufd`
-/// to spread each quad over the lanes, which also gives `pmaddubsw` the copy it overwrites;
-/// the weights are its aligned memory operand. That is four instructions per sixteen outputs
-/// of a quad, with the sums, the input, the ones and one product in seven of the V5's eight
-/// registers. Each row's sums then go into the running maxima in memory ([`merge_largest`]).
-/// The row loop is in assembly ([`row_asm`]; callgrind, int8 CNN forward: V5 6.46 M ->
-/// 5.57 M, V6 4.86 M -> 4.64 M).
-///
-/// # Safety
-/// The CPU must have SSSE3; `weights.width()` must be 16.
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-#[target_feature(enable = "ssse3")]
-pub(crate) unsafe fn largest_ssse3(
-    x: &[u8],
-    weights: &QuadPanels,
-    acc: &mut [i32],
-    zeros: ZeroGroups,
-) {
-    let ones = _mm_set1_epi16(1);
-    // SAFETY (both closures): `ssse3_panels` hands over one whole row of `groups` groups,
-    // the panel's `groups` groups of 16 aligned vectors and four aligned maxima.
-    macro_rules! row {
-        ($zeros:ident) => {
-            |inputs: *const u8, vectors: *const __m128i, groups: usize, largest: *mut __m128i| unsafe {
-                let (mut s0, mut s1, mut s2, mut s3) = (
-                    _mm_setzero_si128(),
-                    _mm_setzero_si128(),
-                    _mm_setzero_si128(),
-                    _mm_setzero_si128(),
-                );
-                row_asm!(
-                    $zeros,
-                    products16,
-                    "256",
-                    inputs,
-                    vectors,
-                    groups,
-                    ones,
-                    [s0, s1, s2, s3]
-                );
-                merge_largest!(largest, [s0, s1, s2, s3]);
+/// One SSSE3 kernel: `unsafe fn $name(x, weights, acc, zeros)`, panels of `$width` outputs
+/// in the sum registers `[$s..]` (`$width / 4` of them), each row's groups by `$products`
+/// (`$step` bytes of weights a group) in [`row_asm`], the row's sums merged into the running
+/// maxima ([`merge_largest`]), the cells, panels and rows walked by [`ssse3_panels`]; the
+/// zero-group test as `zeros` says. The three widths differ only in these arguments. (The
+/// macro is defined on every target, so that its uses resolve; the functions it writes are
+/// x86's.)
+macro_rules! ssse3_kernel {
+    ($(#[$doc:meta])* $name:ident, $products:ident, $step:literal, $width:literal, $registers:literal,
+        [$($s:ident),+]) => {
+        $(#[$doc])*
+        ///
+        /// # Safety
+        #[doc = concat!("The CPU must have SSSE3; `weights.width()` must be ", stringify!($width), ".")]
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        #[target_feature(enable = "ssse3")]
+        pub(crate) unsafe fn $name(x: &[u8], weights: &QuadPanels, acc: &mut [i32], zeros: ZeroGroups) {
+            let ones = _mm_set1_epi16(1);
+            // SAFETY (both rows): `ssse3_panels` hands over one whole row of `groups` groups,
+            // the panel's `groups` groups of `$width` aligned vectors and `$registers` aligned
+            // maxima; it checks the layout; the caller's contract gives SSSE3.
+            match zeros {
+                ZeroGroups::Skip => {
+                    let row = ssse3_row!(skip, $products, $step, ones, [$($s),+]);
+                    unsafe { ssse3_panels::<$width, $registers>(x, weights, acc, row) }
+                }
+                ZeroGroups::Compute => {
+                    let row = ssse3_row!(compute, $products, $step, ones, [$($s),+]);
+                    unsafe { ssse3_panels::<$width, $registers>(x, weights, acc, row) }
+                }
             }
-        };
-    }
-    match zeros {
-        ZeroGroups::Skip => {
-            let row = row!(skip);
-            // SAFETY: the caller's contract (SSSE3, 16 wide); `ssse3_panels` checks the layout.
-            unsafe { ssse3_panels::<16, 4>(x, weights, acc, row) }
         }
-        ZeroGroups::Compute => {
-            let row = row!(compute);
-            // SAFETY: the caller's contract (SSSE3, 16 wide); `ssse3_panels` checks the layout.
-            unsafe { ssse3_panels::<16, 4>(x, weights, acc, row) }
-        }
-    }
+    };
 }
 
-/// [`largest_ssse3`] for layers of at most 8 outputs: one panel of 8 in two registers
-/// ([`products8`]).
-///
-/// # Safety
-/// The CPU must have SSSE3; `weights.width()` must be 8.
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-#[target_feature(enable = "ssse3")]
-pub(crate) unsafe fn largest_ssse3_8(
-    x: &[u8],
-    weights: &QuadPanels,
-    acc: &mut [i32],
-    zeros: ZeroGroups,
-) {
-    let ones = _mm_set1_epi16(1);
-    // SAFETY: as in `largest_ssse3`, with groups of 8 vectors and two maxima.
-    macro_rules! row {
-        ($zeros:ident) => {
-            |inputs: *const u8, vectors: *const __m128i, groups: usize, largest: *mut __m128i| unsafe {
-                let (mut s0, mut s1) = (_mm_setzero_si128(), _mm_setzero_si128());
-                row_asm!(
-                    $zeros,
-                    products8,
-                    "128",
-                    inputs,
-                    vectors,
-                    groups,
-                    ones,
-                    [s0, s1]
-                );
-                merge_largest!(largest, [s0, s1]);
-            }
-        };
-    }
-    match zeros {
-        ZeroGroups::Skip => {
-            let row = row!(skip);
-            // SAFETY: the caller's contract (SSSE3, 8 wide); `ssse3_panels` checks the layout.
-            unsafe { ssse3_panels::<8, 2>(x, weights, acc, row) }
+/// The row closure of an [`ssse3_kernel`]: zeroed sums, the row's groups in [`row_asm`]
+/// (`$zeros`: `skip` or `compute`), the sums merged into the maxima at `largest`.
+macro_rules! ssse3_row {
+    ($zeros:ident, $products:ident, $step:literal, $ones:ident, [$($s:ident),+]) => {
+        |inputs: *const u8, vectors: *const __m128i, groups: usize, largest: *mut __m128i| unsafe {
+            $(let mut $s = _mm_setzero_si128();)+
+            row_asm!($zeros, $products, $step, inputs, vectors, groups, $ones, [$($s),+]);
+            merge_largest!(largest, [$($s),+]);
         }
-        ZeroGroups::Compute => {
-            let row = row!(compute);
-            // SAFETY: the caller's contract (SSSE3, 8 wide); `ssse3_panels` checks the layout.
-            unsafe { ssse3_panels::<8, 2>(x, weights, acc, row) }
-        }
-    }
+    };
 }
 
-/// [`largest_ssse3`] for layers of at most 4 outputs: one panel of 4 in one register
-/// ([`products4`]).
-///
-/// # Safety
-/// The CPU must have SSSE3; `weights.width()` must be 4.
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-#[target_feature(enable = "ssse3")]
-pub(crate) unsafe fn largest_ssse3_4(
-    x: &[u8],
-    weights: &QuadPanels,
-    acc: &mut [i32],
-    zeros: ZeroGroups,
-) {
-    let ones = _mm_set1_epi16(1);
-    // SAFETY: as in `largest_ssse3`, with groups of 4 vectors and one maximum.
-    macro_rules! row {
-        ($zeros:ident) => {
-            |inputs: *const u8, vectors: *const __m128i, groups: usize, largest: *mut __m128i| unsafe {
-                let mut s0 = _mm_setzero_si128();
-                row_asm!($zeros, products4, "64", inputs, vectors, groups, ones, [s0]);
-                merge_largest!(largest, [s0]);
-            }
-        };
-    }
-    match zeros {
-        ZeroGroups::Skip => {
-            let row = row!(skip);
-            // SAFETY: the caller's contract (SSSE3, 4 wide); `ssse3_panels` checks the layout.
-            unsafe { ssse3_panels::<4, 1>(x, weights, acc, row) }
-        }
-        ZeroGroups::Compute => {
-            let row = row!(compute);
-            // SAFETY: the caller's contract (SSSE3, 4 wide); `ssse3_panels` checks the layout.
-            unsafe { ssse3_panels::<4, 1>(x, weights, acc, row) }
-        }
-    }
-}
+ssse3_kernel!(
+    /// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`) on 128-bit vectors, panels of
+    /// 16 outputs held in four registers. The inputs are read a group (sixteen bytes) at a
+    /// time: one load, with [`ZeroGroups::Skip`] one test that skips sixteen zero inputs, and
+    /// `pshufd` to spread each quad over the lanes, which also gives `pmaddubsw` the copy it
+    /// overwrites; the weights are its aligned memory operand. That is four instructions per
+    /// sixteen outputs of a quad, with the sums, the input, the ones and one product in seven
+    /// of the V5's eight registers. Each row's sums then go into the running maxima in memory
+    /// ([`merge_largest`]). The row loop is in assembly ([`row_asm`]; callgrind, int8 CNN
+    /// forward: V5 6.46 M -> 5.57 M, V6 4.86 M -> 4.64 M).
+    largest_ssse3, products16, "256", 16, 4, [s0, s1, s2, s3]
+);
+
+ssse3_kernel!(
+    /// [`largest_ssse3`] for layers of at most 8 outputs: one panel of 8 in two registers
+    /// ([`products8`]).
+    largest_ssse3_8, products8, "128", 8, 2, [s0, s1]
+);
+
+ssse3_kernel!(
+    /// [`largest_ssse3`] for layers of at most 4 outputs: one panel of 4 in one register
+    /// ([`products4`]).
+    largest_ssse3_4, products4, "64", 4, 1, [s0]
+);
 
 /// The cell, panel and row loops of the SSSE3 kernels: for each cell of `acc` and each panel
 /// of `N` outputs (`R = N / 4` registers), `row_sums(inputs, vectors, groups, largest)` sums
