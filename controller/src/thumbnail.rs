@@ -235,6 +235,18 @@ mod tests {
         CameraFrame::from_yuyv(header, bytes).expect("valid frame")
     }
 
+    /// A frame whose every pixel has luma `luma` and chroma `chroma` (YUYV: Y in the even
+    /// bytes, U and V in the odd ones).
+    fn uniform_frame<const W: usize, const H: usize>(
+        luma: u8,
+        chroma: u8,
+    ) -> Box<CameraFrame<W, H>> {
+        let bytes: Vec<u8> = (0..CameraFrame::<W, H>::PIXEL_BYTES)
+            .map(|i| if i % 2 == 0 { luma } else { chroma })
+            .collect();
+        frame_from::<W, H>(&bytes)
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(24))]
 
@@ -274,11 +286,8 @@ mod tests {
 
         #[test]
         fn a_constant_luma_gives_that_constant(luma in any::<u8>(), chroma in any::<u8>()) {
-            let bytes: Vec<u8> = (0..TopFrame::PIXEL_BYTES)
-                .map(|i| if i % 2 == 0 { luma } else { chroma })
-                .collect();
             let mut thumbnail = TopThumbnail::black();
-            downscale(&frame_from::<640, 480>(&bytes), &mut thumbnail);
+            downscale(&uniform_frame::<640, 480>(luma, chroma), &mut thumbnail);
             prop_assert!(thumbnail.as_bytes().iter().all(|&p| p == luma));
         }
     }
@@ -286,21 +295,15 @@ mod tests {
     #[test]
     fn the_largest_block_sums_do_not_saturate() {
         // Every luma 255: each block sums to 16 x 255, the most any lane of the packs holds.
-        let bytes: Vec<u8> = (0..TopFrame::PIXEL_BYTES)
-            .map(|i| if i % 2 == 0 { 255 } else { 0 })
-            .collect();
         let mut thumbnail = TopThumbnail::black();
-        downscale(&frame_from::<640, 480>(&bytes), &mut thumbnail);
+        downscale(&uniform_frame::<640, 480>(255, 0), &mut thumbnail);
         assert!(thumbnail.as_bytes().iter().all(|&p| p == 255));
     }
 
     #[test]
     fn chroma_does_not_leak_into_the_thumbnail() {
-        let bytes: Vec<u8> = (0..BottomFrame::PIXEL_BYTES)
-            .map(|i| if i % 2 == 0 { 0 } else { 255 })
-            .collect();
         let mut thumbnail = BottomThumbnail::black();
-        downscale(&frame_from::<320, 240>(&bytes), &mut thumbnail);
+        downscale(&uniform_frame::<320, 240>(0, 255), &mut thumbnail);
         assert!(thumbnail.as_bytes().iter().all(|&p| p == 0));
     }
 

@@ -226,78 +226,50 @@ pub(crate) fn largest_portable(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) 
     }
 }
 
-/// One group's products for a 16-wide panel, in assembly text: per quad and weight vector
-/// `pshufd` (the spread quad, also the copy `pmaddubsw` overwrites), `pmaddubsw` with the
-/// aligned weights at `{w}` as its memory operand, `pmaddwd` with ones, `paddd` into `{s0}`..
-/// `{s3}`: 64 instructions in seven vector registers.
+/// One product of a group in assembly text: `pshufd` spreads quad `$quad` of the group over
+/// the lanes (also the copy `pmaddubsw` overwrites), `pmaddubsw` with the aligned weights at
+/// `{w} + $offset` as its memory operand, `pmaddwd` with ones, `paddd` into the sum register
+/// `$sum`. The panels below are these four instructions per quad and sum register.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+macro_rules! product {
+    ($quad:literal, $offset:literal, $sum:literal) => {
+        concat!(
+            "pshufd {t}, {xs}, ",
+            $quad,
+            "\n",
+            "pmaddubsw {t}, xmmword ptr [{w} + ",
+            $offset,
+            "]\n",
+            "pmaddwd {t}, {ones}\n",
+            "paddd {",
+            $sum,
+            "}, {t}\n",
+        )
+    };
+}
+
+/// One group's products for a 16-wide panel, in assembly text ([`product`] per quad and
+/// weight vector, into `{s0}`..`{s3}`): 64 instructions in seven vector registers.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! products16 {
     () => {
         concat!(
-            "pshufd {t}, {xs}, 0x00\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 0]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0x00\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 16]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
-            "pshufd {t}, {xs}, 0x00\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 32]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s2}, {t}\n",
-            "pshufd {t}, {xs}, 0x00\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 48]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s3}, {t}\n",
-            "pshufd {t}, {xs}, 0x55\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 64]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0x55\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 80]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
-            "pshufd {t}, {xs}, 0x55\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 96]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s2}, {t}\n",
-            "pshufd {t}, {xs}, 0x55\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 112]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s3}, {t}\n",
-            "pshufd {t}, {xs}, 0xaa\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 128]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0xaa\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 144]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
-            "pshufd {t}, {xs}, 0xaa\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 160]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s2}, {t}\n",
-            "pshufd {t}, {xs}, 0xaa\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 176]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s3}, {t}\n",
-            "pshufd {t}, {xs}, 0xff\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 192]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0xff\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 208]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
-            "pshufd {t}, {xs}, 0xff\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 224]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s2}, {t}\n",
-            "pshufd {t}, {xs}, 0xff\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 240]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s3}, {t}\n",
+            product!("0x00", "0", "s0"),
+            product!("0x00", "16", "s1"),
+            product!("0x00", "32", "s2"),
+            product!("0x00", "48", "s3"),
+            product!("0x55", "64", "s0"),
+            product!("0x55", "80", "s1"),
+            product!("0x55", "96", "s2"),
+            product!("0x55", "112", "s3"),
+            product!("0xaa", "128", "s0"),
+            product!("0xaa", "144", "s1"),
+            product!("0xaa", "160", "s2"),
+            product!("0xaa", "176", "s3"),
+            product!("0xff", "192", "s0"),
+            product!("0xff", "208", "s1"),
+            product!("0xff", "224", "s2"),
+            product!("0xff", "240", "s3"),
         )
     };
 }
@@ -309,38 +281,14 @@ macro_rules! products16 {
 macro_rules! products8 {
     () => {
         concat!(
-            "pshufd {t}, {xs}, 0x00\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 0]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0x00\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 16]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
-            "pshufd {t}, {xs}, 0x55\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 32]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0x55\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 48]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
-            "pshufd {t}, {xs}, 0xaa\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 64]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0xaa\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 80]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
-            "pshufd {t}, {xs}, 0xff\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 96]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0xff\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 112]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s1}, {t}\n",
+            product!("0x00", "0", "s0"),
+            product!("0x00", "16", "s1"),
+            product!("0x55", "32", "s0"),
+            product!("0x55", "48", "s1"),
+            product!("0xaa", "64", "s0"),
+            product!("0xaa", "80", "s1"),
+            product!("0xff", "96", "s0"),
+            product!("0xff", "112", "s1"),
         )
     };
 }
@@ -352,22 +300,10 @@ macro_rules! products8 {
 macro_rules! products4 {
     () => {
         concat!(
-            "pshufd {t}, {xs}, 0x00\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 0]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0x55\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 16]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0xaa\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 32]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
-            "pshufd {t}, {xs}, 0xff\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + 48]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {s0}, {t}\n",
+            product!("0x00", "0", "s0"),
+            product!("0x55", "16", "s0"),
+            product!("0xaa", "32", "s0"),
+            product!("0xff", "48", "s0"),
         )
     };
 }
