@@ -55,7 +55,8 @@ def test_the_robot_carries_the_int8_twin_only_where_it_keeps_the_float_models_qu
     shipped = models / "best"
     _policy(shipped, 0.100)
     _selection(shipped / "select.json", 44)
-    assert results.robot_policy(shipped) == ("best", f"no int8 twin {models / 'best-int8'}")
+    name, why = results.robot_policy(shipped)
+    assert name == "best" and why.endswith(f"no int8 twin {models / 'best-int8'}")
     digest = hashlib.sha256(b"best").hexdigest()
     twin = models / "best-int8"
     _policy(twin, 0.109, [digest])
@@ -75,7 +76,59 @@ def test_the_robot_carries_the_int8_twin_only_where_it_keeps_the_float_models_qu
     shutil.rmtree(twin)
     _policy(twin, 0.100, [hashlib.sha256(b"other").hexdigest()])
     name, why = results.robot_policy(shipped)
-    assert name == "best" and "not quantized from the shipped networks" in why
+    assert name == "best" and "not quantized from best's networks" in why
+
+
+def _tick(directory: Path, instructions: int) -> None:
+    networks = [hashlib.sha256((directory / "policy.onnx").read_bytes()).hexdigest()]
+    (directory / "v5_tick.json").write_text(json.dumps({"build": "v5", "instructions": instructions, "networks_sha256": networks}))
+
+
+def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_the_quality(tmp_path):
+    models = tmp_path / "policy"
+    shipped, narrow = models / "best", models / "narrow"
+    _policy(shipped, 0.100)
+    _selection(shipped / "select.json", 44)
+    _policy(narrow, 0.120)
+    for name, error, goals, instructions in (("best-int8", 0.105, 41, 3_081_839), ("narrow-int8", 0.125, 42, 1_647_536)):
+        _policy(models / name, error, [hashlib.sha256(name.removesuffix("-int8").encode()).hexdigest()])
+        _selection(tmp_path / "selection" / f"{name}.json", goals)
+        _tick(models / name, instructions)
+    # The narrow twin keeps the quality (0.125 <= 0.120 + 0.01; 42 of 50 above 38.1) and fits.
+    name, why = results.robot_policy(shipped)
+    assert name == "narrow-int8" and "1,647,536 instructions of 1,680,000" in why
+    # Its test error is compared with its own float model's, not the shipped one's.
+    (narrow / "policy.toml").write_text((narrow / "policy.toml").read_text().replace("0.12", "0.114"))
+    assert results.robot_policy(shipped)[0] == "best-int8"
+    (narrow / "policy.toml").write_text((narrow / "policy.toml").read_text().replace("0.114", "0.12"))
+    # The robot's own score of the int8 network, where there is one, over its manifest's copy.
+    (models / "narrow-int8" / "score_test.json").write_text(json.dumps({"error": 0.131}))
+    assert results.robot_policy(shipped)[0] == "best-int8"
+    (models / "narrow-int8" / "score_test.json").write_text(json.dumps({"error": 0.118}))
+    assert results.robot_policy(shipped)[0] == "narrow-int8"
+    # Over the budget (or not counted) it is no candidate: the shipped model's twin, which keeps
+    # the quality though its tick does not fit, is the fallback.
+    _tick(models / "narrow-int8", results.V5_TICK_BUDGET + 1)
+    name, why = results.robot_policy(shipped)
+    assert name == "best-int8" and "no int8 policy fits the V5 tick" in why
+    (models / "narrow-int8" / "v5_tick.json").unlink()
+    assert results.robot_policy(shipped)[0] == "best-int8"
+    # A count of other networks than the directory holds now does not count.
+    _tick(models / "narrow-int8", 1_000_000)
+    (models / "narrow-int8" / "policy.onnx").write_bytes(b"retrained")
+    assert results.robot_policy(shipped)[0] != "narrow-int8"
+    (models / "narrow-int8" / "policy.onnx").write_bytes(b"narrow-int8")
+    # Goals on the shipped model's selection seeds below its interval rule a fitting twin out.
+    _tick(models / "narrow-int8", results.V5_TICK_BUDGET)
+    assert results.robot_policy(shipped)[0] == "narrow-int8"
+    _selection(tmp_path / "selection" / "narrow-int8.json", 38)
+    assert results.robot_policy(shipped)[0] == "best-int8"
+    # Of two that fit, the more selection goals, then the fewer instructions.
+    _selection(tmp_path / "selection" / "narrow-int8.json", 42)
+    _tick(models / "best-int8", 1_600_000)
+    assert results.robot_policy(shipped)[0] == "narrow-int8"
+    _selection(tmp_path / "selection" / "best-int8.json", 42)
+    assert results.robot_policy(shipped)[0] == "best-int8"
 
 
 def test_the_committed_robot_policy_is_the_rules():
