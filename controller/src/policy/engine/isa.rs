@@ -122,12 +122,14 @@ impl Isa {
     }
 
     /// The int8 kernel an int8 policy's layers run with under this set: `pmaddubsw` from
-    /// SSSE3 on (the V5 and V6 Atoms), on 32 bytes with AVX2 (AVX-512 too: its VNNI is not
-    /// used), the portable one below SSSE3.
+    /// SSSE3 on (the V5 and V6 Atoms; with SSE4.2, the V6's set, the maxima with SSE4.1's
+    /// `pmaxsd`), on 32 bytes with AVX2 (AVX-512 too: its VNNI is not used), the portable one
+    /// below SSSE3.
     pub(crate) fn int8_kernel(self) -> Int8Kernel {
         match self {
             Self::Portable | Self::Sse2 => Int8Kernel::PORTABLE,
-            Self::Ssse3 | Self::Sse42 => Int8Kernel::ssse3(),
+            Self::Ssse3 => Int8Kernel::ssse3(),
+            Self::Sse42 => Int8Kernel::sse41(),
             Self::Avx2Fma | Self::Avx512 => Int8Kernel::avx2(),
         }
     }

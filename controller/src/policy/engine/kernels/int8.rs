@@ -75,6 +75,8 @@ pub(crate) struct QuadPanels {
     /// [`Self::pairs`]' layout: one 32-wide panel whose 256-bit vectors hold four outputs'
     /// weights twice, for two rows at once.
     pairs: bool,
+    /// [`Self::tail_quads`].
+    tail_quads: usize,
 }
 
 impl QuadPanels {
@@ -93,6 +95,7 @@ impl QuadPanels {
         let panels = outputs.div_ceil(width);
         let len = panels * quads * width * 4;
         let mut blocks = vec![WeightBlock([0; 64]); len.div_ceil(64)];
+        let mut last_nonzero = None;
         for (o, row) in rows.chunks_exact(inputs.max(1)).take(outputs).enumerate() {
             let (panel, column) = (o / width, o % width);
             for (i, &w) in row.iter().enumerate() {
@@ -105,8 +108,17 @@ impl QuadPanels {
                 }
                 let at = ((panel * quads + i / 4) * width + column) * 4 + i % 4;
                 blocks[at / 64].0[at % 64] = w;
+                if w != 0 {
+                    last_nonzero = last_nonzero.max(Some(i));
+                }
             }
         }
+        // The last group's quads up to the last nonzero weight (at least one).
+        let last_group = quads.saturating_sub(4);
+        let tail_quads = match last_nonzero {
+            Some(i) if i / 4 >= last_group => i / 4 - last_group + 1,
+            _ => 1,
+        };
         Ok(Self {
             blocks,
             len,
@@ -114,6 +126,7 @@ impl QuadPanels {
             outputs,
             width,
             pairs: false,
+            tail_quads,
         })
     }
 
@@ -153,6 +166,14 @@ impl QuadPanels {
     /// Inputs rounded up to whole groups: the length of each `x` the kernels read.
     pub(crate) fn padded_inputs(&self) -> usize {
         self.inputs.div_ceil(GROUP) * GROUP
+    }
+
+    /// How many of the last group's four quads the SSSE3 kernels compute (1 to 4): those up to
+    /// the last that holds a nonzero weight of any output. The quads after it add nothing
+    /// whatever the inputs: a convolution's window is laid out in whole groups with zero
+    /// weights after it (a camera's 5x5 window of one channel is 25 bytes of 32: 3 quads).
+    pub(crate) fn tail_quads(&self) -> usize {
+        self.tail_quads
     }
 
     /// The weights as one run of bytes, `[panel][quad][width][4]`.
@@ -248,24 +269,41 @@ macro_rules! product {
     };
 }
 
-/// One group's products for a 16-wide panel, in assembly text ([`product`] per quad and
-/// weight vector, into `{s0}`..`{s3}`): 64 instructions in seven vector registers.
+/// The first `$quads` quads (1 to 4) of one group's products for a 16-wide panel, in assembly
+/// text ([`product`] per quad and weight vector, into `{s0}`..`{s3}`): 16 instructions a quad,
+/// 64 for a whole group, in seven vector registers. Fewer than four only for a row's last
+/// group, whose other quads hold nothing but padding ([`row_asm`]).
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! products16 {
-    () => {
+    (1) => {
         concat!(
             product!("0x00", "0", "s0"),
             product!("0x00", "16", "s1"),
             product!("0x00", "32", "s2"),
             product!("0x00", "48", "s3"),
+        )
+    };
+    (2) => {
+        concat!(
+            products16!(1),
             product!("0x55", "64", "s0"),
             product!("0x55", "80", "s1"),
             product!("0x55", "96", "s2"),
             product!("0x55", "112", "s3"),
+        )
+    };
+    (3) => {
+        concat!(
+            products16!(2),
             product!("0xaa", "128", "s0"),
             product!("0xaa", "144", "s1"),
             product!("0xaa", "160", "s2"),
             product!("0xaa", "176", "s3"),
+        )
+    };
+    (4) => {
+        concat!(
+            products16!(3),
             product!("0xff", "192", "s0"),
             product!("0xff", "208", "s1"),
             product!("0xff", "224", "s2"),
@@ -279,16 +317,28 @@ macro_rules! products16 {
 /// 8-output layer would spend 64 on half zero weights.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! products8 {
-    () => {
+    (1) => {
+        concat!(product!("0x00", "0", "s0"), product!("0x00", "16", "s1"))
+    };
+    (2) => {
         concat!(
-            product!("0x00", "0", "s0"),
-            product!("0x00", "16", "s1"),
+            products8!(1),
             product!("0x55", "32", "s0"),
-            product!("0x55", "48", "s1"),
+            product!("0x55", "48", "s1")
+        )
+    };
+    (3) => {
+        concat!(
+            products8!(2),
             product!("0xaa", "64", "s0"),
-            product!("0xaa", "80", "s1"),
+            product!("0xaa", "80", "s1")
+        )
+    };
+    (4) => {
+        concat!(
+            products8!(3),
             product!("0xff", "96", "s0"),
-            product!("0xff", "112", "s1"),
+            product!("0xff", "112", "s1")
         )
     };
 }
@@ -298,32 +348,40 @@ macro_rules! products8 {
 /// CNN) spends 32, half on zero weights.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! products4 {
-    () => {
-        concat!(
-            product!("0x00", "0", "s0"),
-            product!("0x55", "16", "s0"),
-            product!("0xaa", "32", "s0"),
-            product!("0xff", "48", "s0"),
-        )
+    (1) => {
+        product!("0x00", "0", "s0")
+    };
+    (2) => {
+        concat!(products4!(1), product!("0x55", "16", "s0"))
+    };
+    (3) => {
+        concat!(products4!(2), product!("0xaa", "32", "s0"))
+    };
+    (4) => {
+        concat!(products4!(3), product!("0xff", "48", "s0"))
     };
 }
 
 /// One row of `$groups` groups into the sums of a panel (`products16` into four registers,
-/// `products8` into two, `products4` into one), the whole loop in assembly (legacy SSE encoding, for the Atoms):
-/// per group one unaligned load, with `skip` a test that skips sixteen zero inputs (six
-/// instructions that pay only where such groups are common: after ReLU and max-pooling, not
-/// in a camera's pixels), then the products. Why assembly: on the V5's eight registers the
-/// compiler interleaved a group's quads and spilled sums to the stack (about 40 % more
-/// instructions a group), and around per-quad `asm!` blocks it set its loop up again after
-/// every group it computed (about a dozen instructions a group); here the loop costs four.
+/// `products8` into two, `products4` into one), the whole row in assembly (legacy SSE
+/// encoding, for the Atoms): the groups before the last in a loop, per group one unaligned
+/// load, with `skip` a test that skips sixteen zero inputs (six instructions that pay only
+/// where such groups are common: after ReLU and max-pooling, not in a camera's pixels), then
+/// the products; the last group after the loop, without the test and with only its first
+/// `$tail` quads (1 to 4): the row's inputs are padded to whole groups with zero weights, so
+/// the quads past the inputs add nothing (a 5x5 window of one channel, 25 bytes, spends 3 of
+/// the last group's 4). Why assembly: on the V5's eight registers the compiler interleaved a
+/// group's quads and spilled sums to the stack (about 40 % more instructions a group), and
+/// around per-quad `asm!` blocks it set its loop up again after every group it computed
+/// (about a dozen instructions a group); here the loop costs four.
 ///
-/// Inside the caller's `unsafe` block, whose contract gives: `$groups * 16` bytes at
-/// `$bytes`, `$groups * N` aligned vectors at `$vectors`. Reads only those, writes only the
-/// named registers and the flags; no stack. Nothing runs for 0 groups.
+/// Inside the caller's `unsafe` block, whose contract gives: `$groups >= 1`, `$groups * 16`
+/// bytes at `$bytes`, `$groups * N` aligned vectors at `$vectors`. Reads only those, writes
+/// only the named registers and the flags; no stack.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! row_asm {
     (skip, $($rest:tt)*) => {
-        row_asm!(@loop concat!(
+        row_asm!(@row concat!(
             "pxor {t}, {t}\n",
             "pcmpeqb {t}, {xs}\n",
             "pmovmskb {mask:e}, {t}\n",
@@ -332,44 +390,48 @@ macro_rules! row_asm {
         ), $($rest)*, mask = out(reg) _,)
     };
     (compute, $($rest:tt)*) => {
-        row_asm!(@loop "", $($rest)*,)
+        row_asm!(@row "", $($rest)*,)
     };
-    (@loop $test:expr, $products:ident, $step:literal, $bytes:expr, $vectors:expr, $groups:expr,
-        $ones:expr, [$($s:ident),+], $($extra:tt)*) => {
-        if $groups > 0 {
-            core::arch::asm!(
+    (@row $test:expr, $products:ident, $tail:tt, $step:literal, $bytes:expr, $vectors:expr,
+        $groups:expr, $ones:expr, [$($s:ident),+], $($extra:tt)*) => {
+        core::arch::asm!(
+            "test {n}, {n}",
+            "jz 4f",
             "2:",
             "movdqu {xs}, xmmword ptr [{x}]",
             $test,
-            $products!(),
+            $products!(4),
             "3:",
             "add {x}, 16",
             concat!("add {w}, ", $step),
             "dec {n}",
             "jnz 2b",
+            "4:",
+            "movdqu {xs}, xmmword ptr [{x}]",
+            $products!($tail),
             x = inout(reg) $bytes => _,
             w = inout(reg) $vectors => _,
-            n = inout(reg) $groups => _,
+            n = inout(reg) $groups - 1 => _,
             xs = out(xmm_reg) _,
             t = out(xmm_reg) _,
             ones = in(xmm_reg) $ones,
             $($s = inout(xmm_reg) $s,)+
             $($extra)*
             options(readonly, nostack),
-            )
-        }
+        )
     };
 }
 
-/// Each sum register into the running maxima at `$largest` (aligned, one vector per register)
-/// with SSE2 only (`pmaxsd` is SSE4.1, which the V5's Atom lacks): per register a copy,
-/// `pcmpgtd` against the maximum in memory, `pand`, `pandn` from memory, `por`, the store:
-/// six instructions, where the compiler, keeping four maxima and four sums in the V5's eight
+/// Each sum register into the running maxima at `$largest` (aligned, one vector per register).
+/// `sse2` (the V5's Atom has no SSE4.1 and so no `pmaxsd`): per register a copy, `pcmpgtd`
+/// against the maximum in memory, `pand`, `pandn` from memory, `por`, the store: six
+/// instructions, where the compiler, keeping four maxima and four sums in the V5's eight
 /// registers, moved them through the stack (about 45 instructions a row of a 16-wide panel,
-/// callgrind). The sum registers are left holding the maxima.
+/// callgrind). `sse41` (the V6): `pmaxsd` from memory and the store, two. The sum registers
+/// are left holding the maxima.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! merge_largest {
-    (@register $s:literal, $offset:literal) => {
+    (@register sse2, $s:literal, $offset:literal) => {
         concat!(
             "movdqa {t}, {", $s, "}\n",
             "pcmpgtd {t}, xmmword ptr [{m} + ", $offset, "]\n",
@@ -379,40 +441,37 @@ macro_rules! merge_largest {
             "movdqa xmmword ptr [{m} + ", $offset, "], {", $s, "}\n",
         )
     };
-    ($largest:expr, [$s0:ident]) => {
-        core::arch::asm!(
-            merge_largest!(@register "s0", "0"),
-            m = in(reg) $largest,
-            t = out(xmm_reg) _,
-            s0 = inout(xmm_reg) $s0 => _,
-            options(nostack, preserves_flags),
+    (@register sse41, $s:literal, $offset:literal) => {
+        concat!(
+            "pmaxsd {", $s, "}, xmmword ptr [{m} + ", $offset, "]\n",
+            "movdqa xmmword ptr [{m} + ", $offset, "], {", $s, "}\n",
         )
     };
-    ($largest:expr, [$s0:ident, $s1:ident]) => {
-        core::arch::asm!(
-            merge_largest!(@register "s0", "0"),
-            merge_largest!(@register "s1", "16"),
-            m = in(reg) $largest,
-            t = out(xmm_reg) _,
-            s0 = inout(xmm_reg) $s0 => _,
-            s1 = inout(xmm_reg) $s1 => _,
-            options(nostack, preserves_flags),
-        )
+    // The block: the maxima's address, SSE2's temporary, the sum registers.
+    (@asm sse2, $text:expr, $largest:expr, $($sums:tt)*) => {
+        core::arch::asm!($text, m = in(reg) $largest, t = out(xmm_reg) _, $($sums)* options(nostack, preserves_flags))
     };
-    ($largest:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {
-        core::arch::asm!(
-            merge_largest!(@register "s0", "0"),
-            merge_largest!(@register "s1", "16"),
-            merge_largest!(@register "s2", "32"),
-            merge_largest!(@register "s3", "48"),
-            m = in(reg) $largest,
-            t = out(xmm_reg) _,
-            s0 = inout(xmm_reg) $s0 => _,
-            s1 = inout(xmm_reg) $s1 => _,
-            s2 = inout(xmm_reg) $s2 => _,
-            s3 = inout(xmm_reg) $s3 => _,
-            options(nostack, preserves_flags),
-        )
+    (@asm sse41, $text:expr, $largest:expr, $($sums:tt)*) => {
+        core::arch::asm!($text, m = in(reg) $largest, $($sums)* options(nostack, preserves_flags))
+    };
+    ($set:ident, $largest:expr, [$s0:ident]) => {
+        merge_largest!(@asm $set, merge_largest!(@register $set, "s0", "0"), $largest,
+            s0 = inout(xmm_reg) $s0 => _,)
+    };
+    ($set:ident, $largest:expr, [$s0:ident, $s1:ident]) => {
+        merge_largest!(@asm $set, concat!(
+            merge_largest!(@register $set, "s0", "0"),
+            merge_largest!(@register $set, "s1", "16"),
+        ), $largest, s0 = inout(xmm_reg) $s0 => _, s1 = inout(xmm_reg) $s1 => _,)
+    };
+    ($set:ident, $largest:expr, [$s0:ident, $s1:ident, $s2:ident, $s3:ident]) => {
+        merge_largest!(@asm $set, concat!(
+            merge_largest!(@register $set, "s0", "0"),
+            merge_largest!(@register $set, "s1", "16"),
+            merge_largest!(@register $set, "s2", "32"),
+            merge_largest!(@register $set, "s3", "48"),
+        ), $largest, s0 = inout(xmm_reg) $s0 => _, s1 = inout(xmm_reg) $s1 => _,
+            s2 = inout(xmm_reg) $s2 => _, s3 = inout(xmm_reg) $s3 => _,)
     };
 }
 
@@ -431,27 +490,37 @@ fn write_sums<const N: usize>(out: &mut [i32], store: impl FnOnce(*mut i32)) {
     }
 }
 
-/// One SSSE3 kernel: `unsafe fn $name(x, weights, acc, zeros)`, panels of `$width` outputs
-/// in the sum registers `[$s..]` (`$width / 4` of them), each row's groups by `$products`
-/// (`$step` bytes of weights a group) in [`row_asm`], the row's sums merged into the running
-/// maxima ([`merge_largest`]), the cells, panels and rows walked by [`ssse3_panels`]; the
-/// zero-group test as `zeros` says. The three widths differ only in these arguments. (The
-/// macro is defined on every target, so that its uses resolve; the functions it writes are
-/// x86's.)
+/// One SSSE3 kernel: `unsafe fn $name::<TAIL, SSE41>(x, weights, acc, zeros)`, panels of
+/// `$width` outputs in the sum registers `[$s..]` (`$width / 4` of them), each row's groups by
+/// `$products` (`$step` bytes of weights a group) in [`row_asm`], the last group's first
+/// `TAIL` quads only (`TAIL` must be [`QuadPanels::tail_quads`]), the row's sums merged into
+/// the running maxima ([`merge_largest`]: with `pmaxsd` where `SSE41`), the cells, panels and
+/// rows walked by [`ssse3_panels`]; the zero-group test as `zeros` says. The three widths
+/// differ only in these arguments; [`largest_ssse3_any`] picks the function for a layout.
+/// (The macro is defined on every target, so that its uses resolve; the functions it writes
+/// are x86's.)
 macro_rules! ssse3_kernel {
     ($(#[$doc:meta])* $name:ident, $products:ident, $step:literal, $width:literal, $registers:literal,
         [$($s:ident),+]) => {
         $(#[$doc])*
         ///
         /// # Safety
-        #[doc = concat!("The CPU must have SSSE3; `weights.width()` must be ", stringify!($width), ".")]
+        #[doc = concat!("The CPU must have SSSE3, and SSE4.1 where `SSE41`; `weights.width()` must be ", stringify!($width), ".")]
         #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
         #[target_feature(enable = "ssse3")]
-        pub(crate) unsafe fn $name(x: &[u8], weights: &QuadPanels, acc: &mut [i32], zeros: ZeroGroups) {
+        pub(crate) unsafe fn $name<const TAIL: usize, const SSE41: bool>(
+            x: &[u8],
+            weights: &QuadPanels,
+            acc: &mut [i32],
+            zeros: ZeroGroups,
+        ) {
+            assert_eq!(TAIL, weights.tail_quads(), "the last group's quads");
             let ones = _mm_set1_epi16(1);
-            // SAFETY (both rows): `ssse3_panels` hands over one whole row of `groups` groups,
-            // the panel's `groups` groups of `$width` aligned vectors and `$registers` aligned
-            // maxima; it checks the layout; the caller's contract gives SSSE3.
+            // SAFETY (both rows): `ssse3_panels` hands over one whole row of `groups >= 1`
+            // groups, the panel's `groups` groups of `$width` aligned vectors and
+            // `$registers` aligned maxima; it checks the layout; the quads past `TAIL` in the
+            // last group have zero weights (checked above); the caller's contract gives SSSE3
+            // and, where `SSE41`, SSE4.1.
             match zeros {
                 ZeroGroups::Skip => {
                     let row = ssse3_row!(skip, $products, $step, ones, [$($s),+]);
@@ -467,15 +536,60 @@ macro_rules! ssse3_kernel {
 }
 
 /// The row closure of an [`ssse3_kernel`]: zeroed sums, the row's groups in [`row_asm`]
-/// (`$zeros`: `skip` or `compute`), the sums merged into the maxima at `largest`.
+/// (`$zeros`: `skip` or `compute`; the last group's first `TAIL` quads), the sums merged into
+/// the maxima at `largest` (`SSE41`: with `pmaxsd`). `TAIL` and `SSE41` are the kernel's
+/// constants, so each kernel keeps one arm of each choice.
 macro_rules! ssse3_row {
     ($zeros:ident, $products:ident, $step:literal, $ones:ident, [$($s:ident),+]) => {
         |inputs: *const u8, vectors: *const __m128i, groups: usize, largest: *mut __m128i| unsafe {
             $(let mut $s = _mm_setzero_si128();)+
-            row_asm!($zeros, $products, $step, inputs, vectors, groups, $ones, [$($s),+]);
-            merge_largest!(largest, [$($s),+]);
+            match TAIL {
+                1 => row_asm!($zeros, $products, 1, $step, inputs, vectors, groups, $ones, [$($s),+]),
+                2 => row_asm!($zeros, $products, 2, $step, inputs, vectors, groups, $ones, [$($s),+]),
+                3 => row_asm!($zeros, $products, 3, $step, inputs, vectors, groups, $ones, [$($s),+]),
+                _ => row_asm!($zeros, $products, 4, $step, inputs, vectors, groups, $ones, [$($s),+]),
+            }
+            if SSE41 {
+                merge_largest!(sse41, largest, [$($s),+]);
+            } else {
+                merge_largest!(sse2, largest, [$($s),+]);
+            }
         }
     };
+}
+
+/// The SSSE3 kernel for `weights`' layout (panels of 4, 8 or 16) and its last group's quads
+/// ([`QuadPanels::tail_quads`]), merging with `pmaxsd` where `sse41`.
+///
+/// # Safety
+/// The CPU must have SSSE3, and SSE4.1 where `sse41`.
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+pub(crate) unsafe fn largest_ssse3_any(
+    x: &[u8],
+    weights: &QuadPanels,
+    acc: &mut [i32],
+    zeros: ZeroGroups,
+    sse41: bool,
+) {
+    macro_rules! tails {
+        ($kernel:ident, $sse41:literal) => {
+            // SAFETY: the caller's contract; each kernel checks its width and tail.
+            match weights.tail_quads() {
+                1 => unsafe { $kernel::<1, $sse41>(x, weights, acc, zeros) },
+                2 => unsafe { $kernel::<2, $sse41>(x, weights, acc, zeros) },
+                3 => unsafe { $kernel::<3, $sse41>(x, weights, acc, zeros) },
+                _ => unsafe { $kernel::<4, $sse41>(x, weights, acc, zeros) },
+            }
+        };
+    }
+    match (weights.width, sse41) {
+        (4, false) => tails!(largest_ssse3_4, false),
+        (4, true) => tails!(largest_ssse3_4, true),
+        (8, false) => tails!(largest_ssse3_8, false),
+        (8, true) => tails!(largest_ssse3_8, true),
+        (_, false) => tails!(largest_ssse3, false),
+        (_, true) => tails!(largest_ssse3, true),
+    }
 }
 
 ssse3_kernel!(
@@ -528,6 +642,7 @@ unsafe fn ssse3_panels<const N: usize, const R: usize>(
     let (cells, rows) = weights.cells_in(x, acc);
     let row = weights.padded_inputs();
     let groups = row / GROUP;
+    assert!(groups > 0);
     let outputs = weights.outputs;
     let panels = outputs.div_ceil(N);
     // A panel: `groups` groups of `N` vectors of 16 bytes; whole panels, the first aligned
@@ -758,6 +873,8 @@ pub(crate) struct Int8Kernel(Kind);
 enum Kind {
     Portable,
     Ssse3,
+    /// The SSSE3 kernels with SSE4.1's `pmaxsd` for the maxima (the V6).
+    Sse41,
     Avx2,
 }
 
@@ -773,19 +890,32 @@ impl Int8Kernel {
         Self::PORTABLE
     }
 
+    /// The SSSE3 kernels with SSE4.1's `pmaxsd` where this CPU has SSE4.1, else
+    /// [`Self::ssse3`].
+    pub(crate) fn sse41() -> Self {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        if std::arch::is_x86_feature_detected!("ssse3")
+            && std::arch::is_x86_feature_detected!("sse4.1")
+        {
+            return Self(Kind::Sse41);
+        }
+        Self::ssse3()
+    }
+
     /// AVX2's kernel where this CPU has AVX2, else the widest it has.
     pub(crate) fn avx2() -> Self {
         #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
         if std::arch::is_x86_feature_detected!("avx2") {
             return Self(Kind::Avx2);
         }
-        Self::ssse3()
+        Self::sse41()
     }
 
     pub(crate) fn name(self) -> &'static str {
         match self.0 {
             Kind::Portable => "portable",
             Kind::Ssse3 => "ssse3",
+            Kind::Sse41 => "sse4.1",
             Kind::Avx2 => "avx2",
         }
     }
@@ -803,8 +933,8 @@ impl Int8Kernel {
         match self.0 {
             Kind::Avx2 if outputs > 16 => QuadPanels::new(rows, outputs, inputs, 32),
             Kind::Avx2 => QuadPanels::pairs(rows, outputs, inputs),
-            Kind::Ssse3 if outputs <= 4 => QuadPanels::new(rows, outputs, inputs, 4),
-            Kind::Ssse3 if outputs <= 8 => QuadPanels::new(rows, outputs, inputs, 8),
+            Kind::Ssse3 | Kind::Sse41 if outputs <= 4 => QuadPanels::new(rows, outputs, inputs, 4),
+            Kind::Ssse3 | Kind::Sse41 if outputs <= 8 => QuadPanels::new(rows, outputs, inputs, 8),
             _ => QuadPanels::new(rows, outputs, inputs, 16),
         }
     }
@@ -823,14 +953,11 @@ impl Int8Kernel {
     ) {
         match self.0 {
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-            // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; layout checked.
-            Kind::Ssse3 if weights.width == 8 => unsafe { largest_ssse3_8(x, weights, acc, zeros) },
-            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-            // SAFETY: as above; 4 wide.
-            Kind::Ssse3 if weights.width == 4 => unsafe { largest_ssse3_4(x, weights, acc, zeros) },
-            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-            // SAFETY: as above; 16 wide.
-            Kind::Ssse3 => unsafe { largest_ssse3(x, weights, acc, zeros) },
+            // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected, a `Kind::Sse41`
+            // only where SSE4.1 was too; each kernel checks its layout.
+            Kind::Ssse3 | Kind::Sse41 => unsafe {
+                largest_ssse3_any(x, weights, acc, zeros, self.0 == Kind::Sse41)
+            },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; layout checked.
             Kind::Avx2 if weights.pairs => unsafe { largest_avx2_pairs(x, weights, acc, zeros) },
@@ -1256,24 +1383,23 @@ mod tests {
         {
             let two_cells = [padded.clone(), pad(&flipped(xs))].concat();
             for zeros in [ZeroGroups::Skip, ZeroGroups::Compute] {
-                if std::arch::is_x86_feature_detected!("ssse3") {
-                    let weights = QuadPanels::new(rows, outputs, inputs, 16).expect("in range");
-                    let mut acc = vec![0; 2 * outputs];
-                    // SAFETY: SSSE3 detected; width 16.
-                    unsafe { largest_ssse3(&two_cells, &weights, &mut acc, zeros) };
-                    results.push((format!("ssse3, {zeros:?}"), acc));
-                    // Panels of 8, as for layers of at most 8 outputs (wider ones in pieces).
-                    let weights = QuadPanels::new(rows, outputs, inputs, 8).expect("in range");
-                    let mut acc = vec![0; 2 * outputs];
-                    // SAFETY: SSSE3 detected; width 8.
-                    unsafe { largest_ssse3_8(&two_cells, &weights, &mut acc, zeros) };
-                    results.push((format!("ssse3, panels of 8, {zeros:?}"), acc));
-                    // Panels of 4, as for layers of at most 4 outputs.
-                    let weights = QuadPanels::new(rows, outputs, inputs, 4).expect("in range");
-                    let mut acc = vec![0; 2 * outputs];
-                    // SAFETY: SSSE3 detected; width 4.
-                    unsafe { largest_ssse3_4(&two_cells, &weights, &mut acc, zeros) };
-                    results.push((format!("ssse3, panels of 4, {zeros:?}"), acc));
+                // Panels of 16, of 8 (as for layers of at most 8 outputs; wider ones in
+                // pieces) and of 4 (at most 4), each maximum with SSE2 and with SSE4.1.
+                for sse41 in [false, true] {
+                    if !std::arch::is_x86_feature_detected!("ssse3")
+                        || (sse41 && !std::arch::is_x86_feature_detected!("sse4.1"))
+                    {
+                        continue;
+                    }
+                    for width in [16, 8, 4] {
+                        let weights =
+                            QuadPanels::new(rows, outputs, inputs, width).expect("in range");
+                        let mut acc = vec![0; 2 * outputs];
+                        // SAFETY: SSSE3 detected, and SSE4.1 where `sse41`.
+                        unsafe { largest_ssse3_any(&two_cells, &weights, &mut acc, zeros, sse41) };
+                        let set = if sse41 { "sse4.1" } else { "ssse3" };
+                        results.push((format!("{set}, panels of {width}, {zeros:?}"), acc));
+                    }
                 }
                 if std::arch::is_x86_feature_detected!("avx2") {
                     let weights = QuadPanels::new(rows, outputs, inputs, 32).expect("in range");
@@ -1377,6 +1503,46 @@ mod tests {
     }
 
     #[test]
+    fn the_last_group_is_computed_up_to_its_last_nonzero_weight() {
+        // A camera's 5x5 window of one channel (25 bytes: 3 of the last group's 4 quads), of
+        // four and of eight channels (100: 1; 200: 2), whole groups (4) and the small cases.
+        for (inputs, tail) in [
+            (25, 3),
+            (100, 1),
+            (200, 2),
+            (1280, 4),
+            (16, 4),
+            (17, 1),
+            (1, 1),
+            (4, 1),
+            (5, 2),
+            (13, 4),
+            (0, 1),
+        ] {
+            let weights = QuadPanels::new(&vec![1; 3 * inputs], 3, inputs, 4).expect("in range");
+            assert_eq!(weights.tail_quads(), tail, "{inputs} inputs");
+        }
+        // A window laid out in whole groups: zero weights after its 25 bytes (quads 4..6 of
+        // the last group hold them), but another output's last nonzero weight may come later.
+        for (last, tail) in [(24, 3), (27, 3), (28, 4), (31, 4), (16, 3), (3, 3)] {
+            let mut rows = vec![0i8; 3 * 32];
+            rows[..25].fill(5);
+            rows[64 + last] = -1;
+            let weights = QuadPanels::new(&rows, 3, 32, 8).expect("in range");
+            assert_eq!(weights.tail_quads(), tail, "last nonzero {last}");
+        }
+        // Nothing but zeros in the last group: one quad of it is computed.
+        let mut rows = vec![0i8; 2 * 32];
+        rows[..16].fill(-7);
+        assert_eq!(
+            QuadPanels::new(&rows, 2, 32, 4)
+                .expect("in range")
+                .tail_quads(),
+            1
+        );
+    }
+
+    #[test]
     fn coding_a_run_equals_coding_each_value() {
         // Halves (rounded to even), the ends of the range and past them, the clamp at +-512
         // steps, infinities, NaN, negative zero; runs of every length around 16.
@@ -1429,6 +1595,7 @@ mod tests {
                 for kernel in [
                     Int8Kernel::PORTABLE,
                     Int8Kernel::ssse3(),
+                    Int8Kernel::sse41(),
                     Int8Kernel::avx2(),
                 ] {
                     let weights = kernel.lay_out(&rows, outputs, inputs).expect("in range");
@@ -1635,6 +1802,7 @@ mod tests {
             for kernel in [
                 Int8Kernel::PORTABLE,
                 Int8Kernel::ssse3(),
+                Int8Kernel::sse41(),
                 Int8Kernel::avx2(),
             ] {
                 let weights = kernel
