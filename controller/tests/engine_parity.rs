@@ -20,8 +20,10 @@ const TOLERANCE: f32 = 4e-6;
 const RECURRENT_TOLERANCE: f32 = 1e-5;
 /// An int8 policy: both compute the same integer sums, but a value within rounding of half a
 /// grid step can take the neighbouring step in one and not in the other, and that step is
-/// carried on (`cnn-observable-int8`: 5.7e-4 over these 60 steps; the int8 fixture: 1.5e-8).
-const INT8_TOLERANCE: f32 = 2e-3;
+/// carried on (`cnn-observable-int8`: 5.7e-4 over these 60 steps; `dagger-observable-more-int8`:
+/// 2.03e-3, a step of its coarser command grid; the int8 fixture: 1.5e-8). The integer sums
+/// themselves are held equal to the definition bit for bit by the kernel tests.
+const INT8_TOLERANCE: f32 = 3e-3;
 
 /// Every policy the tests compare: the fixtures and every model `models/policy` ships. The
 /// paper's three rows and the one `SHIPPED` names must be there: a missing one fails.
