@@ -162,7 +162,7 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
         "cnn-narrow-observable", "cnn-narrow-distilled-observable", "dagger-observable", "dagger-observable-more",
         "dagger-rcnn-memory-observable",
         "cnn-orbit", "dagger-orbit",
-        "dagger-observable-int8", "cnn-narrow-distilled-observable-int8")
+        "dagger-observable-int8", "cnn-narrow-distilled-observable-int8", "dagger-observable-more-int8")
 
 
 def selection_runs(directory: Path) -> str:
