@@ -53,7 +53,7 @@ def model_row(name: str, directory: Path) -> dict:
     row = {"name": name, "directory": str(directory), "kind": manifest["kind"], "training": manifest["training"]}
     row["teacher"] = manifest["training"].get("teacher") or "paper"
     row["train_error"] = train["error"] if train else manifest["training"].get("train_error")
-    row["test_error"] = test["error"] if test else manifest["training"].get("test_error")
+    row["test_error"] = scored_test_error(directory)
     row["phases"] = {p: (test["phases"][p]["error"] if test else None) for p in PHASES}
     row["step_ms"] = test["step_ms"]["median"] if test else None
     # Scores written before `dribble score` named its engine were all run under tract; the
@@ -330,7 +330,7 @@ def v5_tick(directory: Path) -> int | None:
     return int(record["instructions"])
 
 
-def int8_quality(twin: Path, shipped_run) -> tuple[bool, str]:
+def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
     """Whether the int8 policy `twin` keeps the quality (issue 29's gate) and what was measured:
     quantized from exactly the networks of its float model (`<name>` without `-int8`, beside
     it), its test error at most 0.01 above that model's, and its goals on the shipped model's
@@ -338,24 +338,24 @@ def int8_quality(twin: Path, shipped_run) -> tuple[bool, str]:
     shipped model's Wilson 95 % interval there."""
     original = twin.parent / twin.name.removesuffix("-int8")
     if not (twin / "policy.toml").is_file() or not (original / "policy.toml").is_file():
-        return False, f"no float model {original.name} beside it"
+        return False, f"no float model {original.name} beside it", 0
     manifest, float_manifest = load(twin / "policy.toml"), load(original / "policy.toml")
     networks = [hashlib.sha256((original / n).read_bytes()).hexdigest() for n in float_manifest["networks"]]
     if manifest.get("precision") != "int8" or manifest.get("quantization", {}).get("float_networks_sha256") != networks:
-        return False, f"not quantized from {original.name}'s networks"
+        return False, f"not quantized from {original.name}'s networks", 0
     errors = (scored_test_error(twin), scored_test_error(original))
     if None in errors:
-        return False, "a test error is missing"
+        return False, "a test error is missing", 0
     run = read_selection(twin.parent.parent / "selection" / f"{twin.name}.json")
     if run is None or shipped_run is None or run.seeds != shipped_run.seeds:
-        return False, "no selection run on the shipped model's seeds"
+        return False, "no selection run on the shipped model's seeds", 0
     low, _ = wilson(shipped_run.goals, shipped_run.episodes)
     measured = (
         f"test error {errors[0]:.4f} against {original.name}'s {errors[1]:.4f}; {run.goals} / {run.episodes} "
         f"selection goals against the shipped model's {shipped_run.goals} / {shipped_run.episodes} (interval from {low:.2f})"
     )
     kept = errors[0] <= errors[1] + INT8_ERROR_MARGIN and run.goals >= low * run.episodes
-    return kept, measured
+    return kept, measured, run.goals
 
 
 def robot_policy(shipped: Path) -> tuple[str, str]:
@@ -372,10 +372,9 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     shipped_run = read_selection(shipped / "select.json")
     fitting = []
     for twin in sorted(shipped.parent.glob("*-int8")):
-        kept, measured = int8_quality(twin, shipped_run)
+        kept, measured, goals = int8_quality(twin, shipped_run)
         instructions = v5_tick(twin)
         if kept and instructions is not None and instructions <= V5_TICK_BUDGET:
-            goals = read_selection(twin.parent.parent / "selection" / f"{twin.name}.json").goals
             fitting.append((-goals, instructions, twin.name, measured))
     if fitting:
         _, instructions, name, measured = min(fitting)
@@ -383,7 +382,7 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     twin = shipped.parent / f"{shipped.name}-int8"
     if not (twin / "policy.toml").is_file():
         return shipped.name, f"no int8 policy fits the V5 tick and keeps the quality, and there is no int8 twin {twin}"
-    kept, measured = int8_quality(twin, shipped_run)
+    kept, measured, _ = int8_quality(twin, shipped_run)
     if not kept:
         return shipped.name, f"{twin.name} does not keep the quality: {measured}"
     return twin.name, f"no int8 policy fits the V5 tick and keeps the quality; the shipped model's twin does: {measured}"
