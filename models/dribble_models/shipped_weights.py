@@ -88,3 +88,69 @@ def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
             )
         loaded[name] = torch.from_numpy(value.copy())
     model.load_state_dict(loaded, strict=True)
+
+
+def load_pruned_weights(model: nn.Module, path: Path) -> dict[str, list[int]]:
+    """Copies into the CNN `model` the weights of the wider shipped CNN at `path`, pruned to
+    `model`'s filter counts, and returns the filters kept per convolution.
+
+    Filter pruning by magnitude (Li et al., "Pruning filters for efficient ConvNets", ICLR
+    2017): each convolution keeps its filters with the largest L1 norms, in their order; the
+    next convolution keeps the input channels of the filters kept before it, and the first
+    dense layer the columns that the kept second-layer filters feed (the flattening is channel
+    by channel: `cells` columns each, 7 x 10 for the top camera and 4 x 5 for the bottom). A
+    start for distilling a narrower network (issue 29): it begins near the wide network's
+    function instead of at random. The model at `path` must be a one-network float CNN at
+    least as wide in every layer; `model` must be a `CNN` (one command)."""
+    network = network_of(path, "cnn")
+    manifest_path = manifest_of(path)
+    initializers = {t.name: numpy_helper.to_array(t) for t in onnx.load(str(network)).graph.initializer}
+    state = model.state_dict()
+    missing = sorted(set(state) - set(initializers))
+    if missing:
+        raise ShippedWeightsError(f"{manifest_path}: no initializer for the parameters {', '.join(missing[:4])}")
+    pruned: dict[str, np.ndarray] = {}
+    kept: dict[str, list[int]] = {}
+    columns: list[np.ndarray] = []
+    offset = 0
+    for branch, cells in (("top", 7 * 10), ("bottom", 4 * 5)):
+        first, second = f"features.{branch}.0", f"features.{branch}.3"
+        w1, w2 = initializers[f"{first}.weight"], initializers[f"{second}.weight"]
+        want1, want2 = state[f"{first}.weight"].shape[0], state[f"{second}.weight"].shape[0]
+        if want1 > w1.shape[0] or want2 > w2.shape[0]:
+            raise ShippedWeightsError(
+                f"{manifest_path}: the {branch} camera has {w1.shape[0]},{w2.shape[0]} filters, fewer than "
+                f"the {want1},{want2} this run trains (pruning only removes filters)"
+            )
+        keep1 = strongest_filters(w1, want1)
+        w2 = w2[:, keep1]
+        keep2 = strongest_filters(w2, want2)
+        pruned[f"{first}.weight"] = w1[keep1]
+        pruned[f"{first}.bias"] = initializers[f"{first}.bias"][keep1]
+        pruned[f"{second}.weight"] = w2[keep2]
+        pruned[f"{second}.bias"] = initializers[f"{second}.bias"][keep2]
+        kept[f"{branch} first"], kept[f"{branch} second"] = keep1.tolist(), keep2.tolist()
+        columns.extend(offset + c * cells + np.arange(cells) for c in keep2)
+        offset += initializers[f"{second}.weight"].shape[0] * cells
+    pruned["head.0.weight"] = initializers["head.0.weight"][:, np.concatenate(columns)]
+    for name in ("head.0.bias", "head.2.weight", "head.2.bias"):
+        pruned[name] = initializers[name]
+    loaded = {}
+    for name, expected in state.items():
+        value = pruned.get(name)
+        if value is None or tuple(value.shape) != tuple(expected.shape) or value.dtype != np.float32:
+            raise ShippedWeightsError(
+                f"{manifest_path}: {name} pruned is {None if value is None else list(value.shape)}, "
+                f"the network's is {list(expected.shape)}"
+            )
+        loaded[name] = torch.from_numpy(value.copy())
+    model.load_state_dict(loaded, strict=True)
+    return kept
+
+
+def strongest_filters(weights: np.ndarray, count: int) -> np.ndarray:
+    """The indices of the `count` filters (first axis) with the largest L1 norms, ascending;
+    ties keep the earlier filter (a stable sort), so the choice is deterministic."""
+    norms = np.abs(weights).reshape(weights.shape[0], -1).sum(axis=1)
+    order = np.argsort(-norms, kind="stable")
+    return np.sort(order[:count])

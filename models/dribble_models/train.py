@@ -23,7 +23,10 @@ demonstrations and exports a model directory the controller loads.
   (`dribble record --driver POLICY --label-with expert`: the expert's labels for the states
   the policy visited) to the training rows; validation stays on `--dataset`'s held-out
   episodes. `--init-from CHECKPOINT|MODEL` starts from another run's kept weights, or from a
-  shipped model's (dribble_models.shipped_weights).
+  shipped model's (dribble_models.shipped_weights). `--prune-from MODEL` starts a narrower CNN
+  (`--filters`) from a wider shipped one, each convolution keeping its filters of largest L1
+  norm (`load_pruned_weights`): with `--distill-from`, a narrow network that begins near the
+  wide one's function.
 - Distillation (beyond the paper): `--distill-from MODEL` (a shipped one-network float CNN
   trained on the same teacher) replaces every training row's label with the command that
   model sends for the row's images (clamped as the controller clamps), so a smaller network
@@ -64,7 +67,7 @@ from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, Filters, ModalCNN
-from .shipped_weights import ShippedWeightsError, is_shipped_model, load_shipped_weights, network_of
+from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of
 from .stalls import CutReport, StallRule, cut_all
 
 SCALE = np.float32(contract.INPUT_SCALE)
@@ -416,6 +419,14 @@ class Training:
             self.clusters = nearest(features, self.model.centroids)
         if args.init_from is not None:
             self.start_from(args.init_from)
+        if args.prune_from is not None:
+            if self.kind != "cnn" or args.modes != 1:
+                raise DatasetError("--prune-from starts a one-output CNN (--kind cnn, --modes 1)")
+            try:
+                kept = load_pruned_weights(self.model, args.prune_from)
+            except ShippedWeightsError as error:
+                raise DatasetError(f"--prune-from: {error}") from error
+            print(f"pruned from {args.prune_from}: filters kept {kept}", file=sys.stderr)
         self.model.to(self.device)
         self.feature_cache: list[torch.Tensor] | None = None
         if args.features_from is not None:
@@ -478,6 +489,7 @@ class Training:
             **({"filters": a.filters.text()} if a.filters != PAPER_FILTERS else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
             **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
+            **({"prune_from": start_sha256(a.prune_from)} if a.prune_from is not None else {}),
             **({"distill_from": start_sha256(a.distill_from)} if a.distill_from is not None else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
@@ -742,6 +754,8 @@ def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> st
         parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:
         parts.append(f"started from the kept weights of {args.init_from} (sha256 {start_sha256(args.init_from)[:12]})")
+    if args.prune_from is not None:
+        parts.append(f"started from {args.prune_from} (sha256 {start_sha256(args.prune_from)[:12]}) pruned to these filters, largest L1 norms kept")
     if args.distill_from is not None:
         parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) for each training row, validated on the teacher's")
     if args.features_from is not None:
@@ -765,6 +779,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--add-dataset", type=Path, action="append", default=[], help="more training data, every episode of it (DAgger's policy-driven, expert-labelled rounds); repeatable")
     parser.add_argument("--cut-stalls", type=float, metavar="SECONDS", help="in the --add-dataset rounds, drop the rows of a stall (robot and ball still) after its first SECONDS (dribble_models.stalls explains why)")
     parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote), or from a shipped one-network float model (its directory or policy.toml: dribble_models.shipped_weights), instead of random ones")
+    parser.add_argument("--prune-from", type=Path, metavar="MODEL", help="CNN: start from this wider shipped one-network float CNN, each convolution keeping its --filters filters of largest L1 norm (and the next layers the matching channels and columns) instead of random weights")
     parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation stays on the teacher's labels)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
@@ -809,6 +824,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--freeze-features needs --features-from")
     if args.freeze_features and args.augment:
         parser.error("--freeze-features computes each episode's features once: no --augment")
+    if args.prune_from is not None and args.init_from is not None:
+        parser.error("--prune-from and --init-from are two starts: name one")
     return args
 
 

@@ -10,8 +10,13 @@ import torch
 from dribble_models.export import export_policy
 from dribble_models.fixtures import synthetic_pairs
 from dribble_models.manifest import TrainingRecord
-from dribble_models.networks import CNN, HCNN, RCNN, ModalCNN, to_network_input
-from dribble_models.shipped_weights import ShippedWeightsError, is_shipped_model, load_shipped_weights
+from dribble_models.networks import CNN, HCNN, RCNN, Filters, ModalCNN, to_network_input
+from dribble_models.shipped_weights import (
+    ShippedWeightsError,
+    is_shipped_model,
+    load_pruned_weights,
+    load_shipped_weights,
+)
 from dribble_models.train import main as train_main
 
 RECORD = TrainingRecord(dataset="test", epochs=0)
@@ -91,3 +96,51 @@ def test_training_starts_from_a_shipped_model_and_refuses_one_it_cannot_take(tmp
     assert refused != 0
     assert re.search(r"--init-from: .*a rcnn model, this run trains a cnn", capsys.readouterr().err)
     assert not (tmp_path / "out2" / "policy.toml").exists()
+
+
+def silenced(model: CNN, branch: str, layer: int, filters: list[int]) -> None:
+    """Zeroes the given filters of one convolution and their bias: their outputs are 0 after ReLU."""
+    with torch.no_grad():
+        conv = getattr(model.features, branch)[layer]
+        conv.weight[filters] = 0.0
+        conv.bias[filters] = -1.0
+
+
+def test_pruning_away_silent_filters_keeps_the_function(tmp_path, rng):
+    # Filters whose ReLU output is always 0 carry nothing: a network pruned to the others
+    # (the largest L1 norms) must answer exactly as the wide one, which checks the kept
+    # input channels of the next convolution and the dense columns of the flattening.
+    torch.manual_seed(5)
+    wide = CNN(Filters(8, 16, 4, 8)).eval()
+    silenced(wide, "top", 0, [1, 4, 6, 7])
+    silenced(wide, "top", 3, [0, 5, 9, 10, 11, 15])
+    silenced(wide, "bottom", 0, [2])
+    silenced(wide, "bottom", 3, [3, 4])
+    export_policy(wide, tmp_path, RECORD)
+    narrow = CNN(Filters(4, 10, 3, 6)).eval()
+    kept = load_pruned_weights(narrow, tmp_path)
+    assert kept == {
+        "top first": [0, 2, 3, 5],
+        "top second": [1, 2, 3, 4, 6, 7, 8, 12, 13, 14],
+        "bottom first": [0, 1, 3],
+        "bottom second": [0, 1, 2, 5, 6, 7],
+    }
+    top, bottom = to_network_input(*synthetic_pairs(rng, 6))
+    with torch.no_grad():
+        assert torch.allclose(narrow(top, bottom), wide(top, bottom), atol=1e-6)
+
+
+def test_pruning_to_the_same_widths_copies_every_weight(tmp_path):
+    torch.manual_seed(6)
+    wide = CNN(Filters(4, 8, 2, 4)).eval()
+    export_policy(wide, tmp_path, RECORD)
+    same = CNN(Filters(4, 8, 2, 4))
+    load_pruned_weights(same, tmp_path)
+    for name, value in wide.state_dict().items():
+        assert torch.equal(same.state_dict()[name], value), name
+
+
+def test_pruning_cannot_add_filters(tmp_path):
+    export_policy(CNN(Filters(4, 8, 2, 4)).eval(), tmp_path, RECORD)
+    with pytest.raises(ShippedWeightsError, match="fewer than"):
+        load_pruned_weights(CNN(Filters(8, 8, 2, 4)), tmp_path)

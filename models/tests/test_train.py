@@ -14,8 +14,8 @@ import torch
 
 from dribble_models import dataset as ds
 from dribble_models.networks import RCNN, ModalCNN, RCNNStep
-from dribble_models.networks import CNN, PAPER_FILTERS
-from dribble_models.shipped_weights import load_shipped_weights
+from dribble_models.networks import CNN, PAPER_FILTERS, Filters
+from dribble_models.shipped_weights import load_pruned_weights, load_shipped_weights
 from dribble_models.train import (
     Rows,
     Training,
@@ -288,3 +288,27 @@ def test_a_distilled_cnn_learns_the_shipped_networks_commands_not_the_teachers(t
     # Not a model to distil from, or not a kind that can be: refused with a reason.
     assert main([*common, "--out", str(tmp_path / "y"), "--checkpoint-dir", str(tmp_path / "c-y"), "--distill-from", str(train)]) == 2
     assert main(["--kind", "hcnn", *common[2:], "--out", str(tmp_path / "z"), "--checkpoint-dir", str(tmp_path / "c-z"), "--distill-from", str(big)]) == 2
+
+
+def test_a_pruned_start_takes_the_wide_models_strongest_filters(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    big = tmp_path / "big"
+    assert main([*common, "--filters", "8,16,4,8", "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    argv = [*common, "--filters", "4,16,4,8", "--out", str(tmp_path / "x"), "--prune-from", str(big)]
+    trainer = Training(parse_args(argv), ds.load(train))
+    expected = CNN(Filters(4, 16, 4, 8))
+    load_pruned_weights(expected, big)
+    for name, value in expected.state_dict().items():
+        assert torch.equal(trainer.model.state_dict()[name].cpu(), value), name
+    # The run names its start by hash, in the manifest and the checkpoint.
+    small = tmp_path / "small"
+    argv = [*common, "--filters", "4,16,4,8", "--out", str(small), "--checkpoint-dir", str(tmp_path / "c-small"), "--prune-from", str(big)]
+    assert main(argv) == 0
+    assert "pruned to these filters" in (small / "policy.toml").read_text()
+    identity = torch.load(tmp_path / "c-small" / "cnn.pt", weights_only=False)["identity"]
+    assert identity["prune_from"] == start_sha256(big)
+    # Wider than its start, or two starts at once: refused.
+    assert main([*common, "--out", str(tmp_path / "y"), "--checkpoint-dir", str(tmp_path / "c-y"), "--prune-from", str(big)]) == 2
+    with pytest.raises(SystemExit):
+        parse_args([*argv, "--init-from", str(big)])
