@@ -79,9 +79,9 @@ def test_the_robot_carries_the_int8_twin_only_where_it_keeps_the_float_models_qu
     assert name == "best" and "not quantized from best's networks" in why
 
 
-def _tick(directory: Path, instructions: int) -> None:
+def _tick(directory: Path, instructions: int, build: str = "v5") -> None:
     networks = [hashlib.sha256((directory / "policy.onnx").read_bytes()).hexdigest()]
-    (directory / "v5_tick.json").write_text(json.dumps({"build": "v5", "instructions": instructions, "networks_sha256": networks}))
+    (directory / f"{build}_tick.json").write_text(json.dumps({"build": build, "instructions": instructions, "networks_sha256": networks}))
 
 
 def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_the_quality(tmp_path):
@@ -96,7 +96,7 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
         _tick(models / name, instructions)
     # The narrow twin keeps the quality (0.125 <= 0.120 + 0.01; 42 of 50 above 38.1) and fits.
     name, why = results.robot_policy(shipped)
-    assert name == "narrow-int8" and "1,647,536 instructions of 1,680,000" in why
+    assert name == "narrow-int8" and "V5: 1,647,536 instructions of 1,680,000; V6: not counted" in why
     # Its test error is compared with its own float model's, not the shipped one's.
     (narrow / "policy.toml").write_text((narrow / "policy.toml").read_text().replace("0.12", "0.114"))
     assert results.robot_policy(shipped)[0] == "best-int8"
@@ -128,6 +128,13 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
     _tick(models / "best-int8", 1_600_000)
     assert results.robot_policy(shipped)[0] == "narrow-int8"
     _selection(tmp_path / "selection" / "best-int8.json", 42)
+    assert results.robot_policy(shipped)[0] == "best-int8"
+    # One that fits the V6 tick too comes before more goals; over the V6's budget it does not.
+    _tick(models / "narrow-int8", results.V6_TICK_BUDGET, "v6")
+    _selection(tmp_path / "selection" / "narrow-int8.json", 40)
+    name, why = results.robot_policy(shipped)
+    assert name == "narrow-int8" and "and the V6 tick" in why and "V6: 1,146,000 of 1,146,000" in why
+    _tick(models / "narrow-int8", results.V6_TICK_BUDGET + 1, "v6")
     assert results.robot_policy(shipped)[0] == "best-int8"
 
 
