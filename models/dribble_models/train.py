@@ -731,6 +731,16 @@ def start_sha256(path: Path) -> str:
     return file_sha256(network_of(path) if is_shipped_model(path) else path)
 
 
+def added_description(directory: Path) -> str:
+    """An added dataset's name and who drove its episodes: a policy (a DAgger round's
+    `dribble record --driver`, whose dataset.json names the driver) or the expert."""
+    try:
+        driven = "policy-driven" if read_index(directory).get("driver") else "expert-driven"
+    except DatasetError:
+        return directory.name
+    return f"{directory.name} ({driven})"
+
+
 def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> str:
     parts = [
         f"Adam lr {args.lr}",
@@ -749,7 +759,7 @@ def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> st
     if args.balance_phases:
         parts.append("phase-balanced sampling")
     if args.add_dataset:
-        parts.append(f"plus every episode of {', '.join(d.name for d in args.add_dataset)} (expert-labelled, policy-driven)")
+        parts.append(f"plus every episode of {', '.join(added_description(d) for d in args.add_dataset)} (expert-labelled)")
     if args.add_dataset and args.cut_stalls is not None:
         parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:

@@ -21,6 +21,7 @@ from dribble_models.train import (
     Training,
     gating_features,
     main,
+    notes_of,
     parse_args,
     sent_commands,
     start_sha256,
@@ -312,3 +313,13 @@ def test_a_pruned_start_takes_the_wide_models_strongest_filters(tmp_path, rng):
     assert main([*common, "--out", str(tmp_path / "y"), "--checkpoint-dir", str(tmp_path / "c-y"), "--prune-from", str(big)]) == 2
     with pytest.raises(SystemExit):
         parse_args([*argv, "--init-from", str(big)])
+
+
+def test_the_notes_say_who_drove_each_added_dataset(tmp_path, rng):
+    demonstrations = write_dataset(tmp_path / "more-0", [100], 4, rng)
+    round_ = write_dataset(tmp_path / "round-1", [1000], 4, rng)
+    index = json.loads((round_ / "dataset.json").read_text())
+    (round_ / "dataset.json").write_text(json.dumps({**index, "driver": {"policy": "p/policy.toml", "beta": 0.5}}))
+    args = parse_args(["--kind", "cnn", "--dataset", str(demonstrations), "--out", str(tmp_path / "x"),
+                       "--add-dataset", str(demonstrations), "--add-dataset", str(round_)])
+    assert "plus every episode of more-0 (expert-driven), round-1 (policy-driven) (expert-labelled)" in notes_of(args)
