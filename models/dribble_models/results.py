@@ -159,10 +159,12 @@ def failure_analysis(rows: list[dict]) -> str:
 #: models/selection, so they are no candidates for the shipped row).
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
         "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable",
-        "cnn-narrow-observable", "cnn-narrow-distilled-observable", "dagger-observable", "dagger-observable-more",
+        "cnn-narrow-observable", "cnn-narrow-distilled-observable", "cnn-narrow-distilled-more-observable",
+        "dagger-observable", "dagger-observable-more",
         "dagger-rcnn-memory-observable",
         "cnn-orbit", "dagger-orbit",
-        "dagger-observable-int8", "cnn-narrow-distilled-observable-int8", "dagger-observable-more-int8")
+        "dagger-observable-int8", "cnn-narrow-distilled-observable-int8", "dagger-observable-more-int8",
+        "cnn-narrow-distilled-more-observable-int8")
 
 
 def selection_runs(directory: Path) -> str:
