@@ -160,11 +160,11 @@ def failure_analysis(rows: list[dict]) -> str:
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
         "cnn-observable", "hcnn-observable", "rcnn-observable", "rcnn-memory-observable", "cnn-modal-observable",
         "cnn-narrow-observable", "cnn-narrow-distilled-observable", "cnn-narrow-distilled-more-observable",
-        "dagger-observable", "dagger-observable-more",
+        "cnn-narrower-distilled-more-observable", "dagger-observable", "dagger-observable-more",
         "dagger-rcnn-memory-observable",
         "cnn-orbit", "dagger-orbit",
         "dagger-observable-int8", "cnn-narrow-distilled-observable-int8", "dagger-observable-more-int8",
-        "cnn-narrow-distilled-more-observable-int8")
+        "cnn-narrow-distilled-more-observable-int8", "cnn-narrower-distilled-more-observable-int8")
 
 
 def selection_runs(directory: Path) -> str:
