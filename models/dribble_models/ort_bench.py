@@ -1,7 +1,10 @@
 """onnxruntime's time per policy step on the committed fixtures: the reference figure beside
 `cargo bench --bench policy` (engine and tract), on the same machine, one thread.
 
-    python -m dribble_models.ort_bench [--runs 2000] [--json FILE]
+    python -m dribble_models.ort_bench [--runs 2000] [--json FILE] [--policy DIR ...]
+
+`--policy DIR` times a shipped one-network policy instead (the CNN rows, float or int8: the
+robot package's policy beside the compiled engine's `dribble-controller forward`).
 
 One step is what the controller runs per computed command: the CNN's one network; for the
 H-CNN, one of its networks (the gating is a histogram and a nearest centroid, microseconds);
@@ -21,6 +24,7 @@ import pathlib
 import statistics
 import sys
 import time
+import tomllib
 
 import numpy as np
 import onnxruntime as ort
@@ -71,13 +75,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=2000, help="timed steps per kind (default 2000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random thumbnails")
     parser.add_argument("--json", type=pathlib.Path, help="also write the figures here")
+    parser.add_argument("--policy", type=pathlib.Path, action="append", default=[], metavar="DIR",
+                        help="time this one-network policy directory (its policy.toml's network) instead of the fixtures; repeatable")
     args = parser.parse_args(argv)
     if args.runs < 10:
         parser.error("--runs must be at least 10")
+    kinds = {kind: FIXTURES / directory / network for kind, (directory, network) in KINDS.items()}
+    if args.policy:
+        kinds = {}
+        for directory in args.policy:
+            manifest = directory / "policy.toml"
+            if not manifest.is_file():
+                parser.error(f"--policy {directory}: no policy.toml there")
+            networks = tomllib.loads(manifest.read_text()).get("networks", [])
+            if len(networks) != 1:
+                parser.error(f"--policy {directory}: {len(networks)} networks; only one-network policies are timed")
+            kinds[directory.name] = directory / networks[0]
     report = {"onnxruntime": ort.__version__, "threads": 1, "kinds": {}}
     print(f"onnxruntime {ort.__version__}, 1 thread, {args.runs} steps per kind (µs)")
-    for kind, (directory, network) in KINDS.items():
-        times = sorted(time_steps(session(FIXTURES / directory / network), args.runs, args.seed))
+    for kind, network in kinds.items():
+        times = sorted(time_steps(session(network), args.runs, args.seed))
         deciles = statistics.quantiles(times, n=10)
         figures = {"median_us": statistics.median(times), "p10_us": deciles[0], "p90_us": deciles[-1]}
         report["kinds"][kind] = figures

@@ -24,3 +24,18 @@ def test_refuses_too_few_runs():
         assert exit.code == 2
     else:
         raise AssertionError("--runs 3 was accepted")
+
+
+def test_times_a_shipped_policy_by_its_directory_name(tmp_path, capsys):
+    from pathlib import Path
+
+    fixture = Path(ort_bench.FIXTURES) / "cnn-int8"
+    out = tmp_path / "ort.json"
+    assert ort_bench.main(["--runs", "10", "--json", str(out), "--policy", str(fixture)]) == 0
+    assert set(json.loads(out.read_text())["kinds"]) == {"cnn-int8"}
+    try:
+        ort_bench.main(["--runs", "10", "--policy", str(tmp_path)])
+    except SystemExit as exit:
+        assert exit.code == 2
+    else:
+        raise AssertionError("a directory without policy.toml was accepted")
