@@ -177,6 +177,9 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
     // The shipped policies are part of the repository: a missing one is a failure.
     let shipped = std::fs::read_to_string(models.join("policy/SHIPPED")).expect("SHIPPED");
     let shipped = format!("policy/{}", shipped.trim());
+    // The robot package's policy (cross/package), whatever the rule chose.
+    let robot = std::fs::read_to_string(models.join("policy/ROBOT")).expect("ROBOT");
+    let robot = format!("policy/{}", robot.trim());
     for name in [
         "fixtures/cnn",
         "fixtures/cnn-int8",
@@ -186,6 +189,7 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
         // Its 4-output layer runs SSSE3's panels of 4 (the narrow network's V5 tick).
         "policy/cnn-narrow-observable-int8",
         shipped.as_str(),
+        robot.as_str(),
     ] {
         let manifest = models.join(name).join("policy.toml");
         assert!(manifest.is_file(), "{} is missing", manifest.display());
