@@ -323,9 +323,9 @@ def scored_test_error(directory: Path) -> float | None:
     return load(directory / "policy.toml")["training"].get("test_error")
 
 
-def v5_tick(directory: Path, build: str = "v5") -> int | None:
-    """Instructions per computing tick on the V5 build (`cross/count v5 --tick --record`), or
-    on the V6's (`build="v6"`), if counted on exactly the networks the directory holds now."""
+def recorded_tick(directory: Path, build: str) -> int | None:
+    """Instructions per computing tick on the `build` ("v5" or "v6") robot build, as `cross/count
+    v5|v6 --tick --record` left them, if counted on exactly the networks the directory holds now."""
     record = read(directory / f"{build}_tick.json")
     if record is None:
         return None
@@ -372,16 +372,16 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     shipped model's interval). Of those whose recorded V5 tick (`v5_tick.json`) fits
     `V5_TICK_BUDGET`, the ones whose V6 tick (`v6_tick.json`) fits `V6_TICK_BUDGET` too come
     first (the package runs on both robots), then the most selection goals, then the fewest V5
-    instructions; if none fits the V5, the shipped model's own twin where it keeps the quality; else the shipped
-    model. The choice reads the selection seeds only: closed loops on test seeds take no part;
+    instructions; if none fits the V5, the shipped model's own twin where it keeps the quality;
+    else the shipped model. The choice reads the selection seeds only: closed loops on test seeds take no part;
     the robot policy's are reported beside it."""
     shipped_run = read_selection(shipped / "select.json")
     fitting = []
     for twin in sorted(shipped.parent.glob("*-int8")):
         kept, measured, goals = int8_quality(twin, shipped_run)
-        instructions = v5_tick(twin)
+        instructions = recorded_tick(twin, "v5")
         if kept and instructions is not None and instructions <= V5_TICK_BUDGET:
-            v6 = v5_tick(twin, "v6")
+            v6 = recorded_tick(twin, "v6")
             fits_v6 = v6 is not None and v6 <= V6_TICK_BUDGET
             fitting.append((not fits_v6, -goals, instructions, twin.name, measured, v6))
     if fitting:
