@@ -63,31 +63,47 @@ def network_of(path: Path, kind: str | None = None) -> Path:
     return manifest_path.parent / networks[0]
 
 
-def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
-    """Copies the float weights of the model at `path` into `model`, strictly (module doc)."""
+def shipped_initializers(path: Path, kind: str) -> tuple[Path, dict[str, np.ndarray]]:
+    """The manifest of the one-network float model of `kind` at `path` and its network's
+    initializers by name (`network_of` refuses any other model)."""
     network = network_of(path, kind)
-    manifest_path = manifest_of(path)
     graph = onnx.load(str(network)).graph
-    initializers = {tensor.name: numpy_helper.to_array(tensor) for tensor in graph.initializer}
-    state = model.state_dict()
-    missing = sorted(set(state) - set(initializers))
+    return manifest_of(path), {tensor.name: numpy_helper.to_array(tensor) for tensor in graph.initializer}
+
+
+def require_every_parameter(model: nn.Module, values: dict[str, np.ndarray], manifest_path: Path) -> None:
+    """Refuses `values` that lack a parameter of `model`."""
+    missing = sorted(set(model.state_dict()) - set(values))
     if missing:
         raise ShippedWeightsError(
             f"{manifest_path}: no initializer for the parameters {', '.join(missing[:4])}"
             f"{' ...' if len(missing) > 4 else ''} (start from the training checkpoint instead)"
         )
-    extra = sorted(set(initializers) - set(state))
-    if extra:
-        raise ShippedWeightsError(f"{manifest_path}: initializers {', '.join(extra[:4])} are no parameter of this network")
+
+
+def load_strictly(model: nn.Module, values: dict[str, np.ndarray], manifest_path: Path) -> None:
+    """Loads `values` into `model`: every parameter must be there, float32, of its shape."""
+    require_every_parameter(model, values, manifest_path)
+    state = model.state_dict()
     loaded = {}
     for name, expected in state.items():
-        value = initializers[name]
+        value = values[name]
         if value.dtype != np.float32 or tuple(value.shape) != tuple(expected.shape):
             raise ShippedWeightsError(
                 f"{manifest_path}: {name} is {value.dtype} {list(value.shape)}, the network's is float32 {list(expected.shape)}"
             )
         loaded[name] = torch.from_numpy(value.copy())
     model.load_state_dict(loaded, strict=True)
+
+
+def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
+    """Copies the float weights of the model at `path` into `model`, strictly (module doc)."""
+    manifest_path, initializers = shipped_initializers(path, kind)
+    require_every_parameter(model, initializers, manifest_path)
+    extra = sorted(set(initializers) - set(model.state_dict()))
+    if extra:
+        raise ShippedWeightsError(f"{manifest_path}: initializers {', '.join(extra[:4])} are no parameter of this network")
+    load_strictly(model, initializers, manifest_path)
 
 
 def load_pruned_weights(model: nn.Module, path: Path) -> dict[str, list[int]]:
@@ -102,13 +118,9 @@ def load_pruned_weights(model: nn.Module, path: Path) -> dict[str, list[int]]:
     start for distilling a narrower network (issue 29): it begins near the wide network's
     function instead of at random. The model at `path` must be a one-network float CNN at
     least as wide in every layer; `model` must be a `CNN` (one command)."""
-    network = network_of(path, "cnn")
-    manifest_path = manifest_of(path)
-    initializers = {t.name: numpy_helper.to_array(t) for t in onnx.load(str(network)).graph.initializer}
+    manifest_path, initializers = shipped_initializers(path, "cnn")
+    require_every_parameter(model, initializers, manifest_path)
     state = model.state_dict()
-    missing = sorted(set(state) - set(initializers))
-    if missing:
-        raise ShippedWeightsError(f"{manifest_path}: no initializer for the parameters {', '.join(missing[:4])}")
     pruned: dict[str, np.ndarray] = {}
     kept: dict[str, list[int]] = {}
     columns: list[np.ndarray] = []
@@ -135,16 +147,7 @@ def load_pruned_weights(model: nn.Module, path: Path) -> dict[str, list[int]]:
     pruned["head.0.weight"] = initializers["head.0.weight"][:, np.concatenate(columns)]
     for name in ("head.0.bias", "head.2.weight", "head.2.bias"):
         pruned[name] = initializers[name]
-    loaded = {}
-    for name, expected in state.items():
-        value = pruned.get(name)
-        if value is None or tuple(value.shape) != tuple(expected.shape) or value.dtype != np.float32:
-            raise ShippedWeightsError(
-                f"{manifest_path}: {name} pruned is {None if value is None else list(value.shape)}, "
-                f"the network's is {list(expected.shape)}"
-            )
-        loaded[name] = torch.from_numpy(value.copy())
-    model.load_state_dict(loaded, strict=True)
+    load_strictly(model, pruned, manifest_path)
     return kept
 
 

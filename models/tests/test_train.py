@@ -263,6 +263,18 @@ def test_an_rcnn_started_from_a_cnns_convolutions_keeps_them_when_frozen(tmp_pat
     assert abs(robot["error"] - trainer["test"]["error"]) < 1e-4
 
 
+def run_naming_its_start(common: list[str], tmp_path: Path, flags: list[str], note: str, key: str, model: Path) -> list[str]:
+    """Trains with `flags` into tmp_path/small and checks that the manifest's notes say `note`
+    and the checkpoint's identity names `model` by hash under `key`; returns the arguments."""
+    small = tmp_path / "small"
+    argv = [*common, *flags, "--out", str(small), "--checkpoint-dir", str(tmp_path / "c-small")]
+    assert main(argv) == 0
+    assert note in (small / "policy.toml").read_text()
+    identity = torch.load(tmp_path / "c-small" / "cnn.pt", weights_only=False)["identity"]
+    assert identity[key] == start_sha256(model)
+    return argv
+
+
 def test_a_distilled_cnn_learns_the_shipped_networks_commands_not_the_teachers(tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
     common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
@@ -280,12 +292,8 @@ def test_a_distilled_cnn_learns_the_shipped_networks_commands_not_the_teachers(t
     np.testing.assert_allclose(trainer.rows.command, expected, atol=1e-6)
     assert not np.allclose(trainer.rows.command, rows.command)
     # The run says so, names the model by hash, and resumes only as the same run.
-    small = tmp_path / "small"
-    argv = [*common, "--filters", "8,16,4,8", "--out", str(small), "--checkpoint-dir", str(tmp_path / "c-small"), "--distill-from", str(big)]
-    assert main(argv) == 0
-    assert "distilled: trained on the commands of" in (small / "policy.toml").read_text()
-    identity = torch.load(tmp_path / "c-small" / "cnn.pt", weights_only=False)["identity"]
-    assert identity["distill_from"] == start_sha256(big)
+    flags = ["--filters", "8,16,4,8", "--distill-from", str(big)]
+    run_naming_its_start(common, tmp_path, flags, "distilled: trained on the commands of", "distill_from", big)
     # Not a model to distil from, or not a kind that can be: refused with a reason.
     assert main([*common, "--out", str(tmp_path / "y"), "--checkpoint-dir", str(tmp_path / "c-y"), "--distill-from", str(train)]) == 2
     assert main(["--kind", "hcnn", *common[2:], "--out", str(tmp_path / "z"), "--checkpoint-dir", str(tmp_path / "c-z"), "--distill-from", str(big)]) == 2
@@ -303,12 +311,8 @@ def test_a_pruned_start_takes_the_wide_models_strongest_filters(tmp_path, rng):
     for name, value in expected.state_dict().items():
         assert torch.equal(trainer.model.state_dict()[name].cpu(), value), name
     # The run names its start by hash, in the manifest and the checkpoint.
-    small = tmp_path / "small"
-    argv = [*common, "--filters", "4,16,4,8", "--out", str(small), "--checkpoint-dir", str(tmp_path / "c-small"), "--prune-from", str(big)]
-    assert main(argv) == 0
-    assert "pruned to these filters" in (small / "policy.toml").read_text()
-    identity = torch.load(tmp_path / "c-small" / "cnn.pt", weights_only=False)["identity"]
-    assert identity["prune_from"] == start_sha256(big)
+    flags = ["--filters", "4,16,4,8", "--prune-from", str(big)]
+    argv = run_naming_its_start(common, tmp_path, flags, "pruned to these filters", "prune_from", big)
     # Wider than its start, or two starts at once: refused.
     assert main([*common, "--out", str(tmp_path / "y"), "--checkpoint-dir", str(tmp_path / "c-y"), "--prune-from", str(big)]) == 2
     with pytest.raises(SystemExit):
