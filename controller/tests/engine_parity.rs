@@ -11,19 +11,96 @@ use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::manifest::{PolicyManifest, Precision};
 use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
 use dribble_controller::{BottomThumbnail, Policy, PolicyInput, TopThumbnail};
+use prost::Message;
 use support::fixture;
+use tract_onnx::pb;
 
 /// Feed-forward models differ by at most 2.6e-6 (the README's figure), a recurrent one's
 /// state carries rounding over the 60 steps to 7.3e-6 (`rcnn-long`); the margins are for
 /// other CPUs' rounding. A whole episode: `tests/recurrent_parity.rs`.
 const TOLERANCE: f32 = 4e-6;
 const RECURRENT_TOLERANCE: f32 = 1e-5;
-/// An int8 policy: both compute the same integer sums, but a value within rounding of half a
-/// grid step can take the neighbouring step in one and not in the other, and that step is
-/// carried on (`cnn-observable-int8`: 5.7e-4 over these 60 steps; `dagger-observable-more-int8`:
-/// 2.03e-3, a step of its coarser command grid; the int8 fixture: 1.5e-8). The integer sums
-/// themselves are held equal to the definition bit for bit by the kernel tests.
-const INT8_TOLERANCE: f32 = 3e-3;
+/// An int8 policy: both engines compute the same integer sums (the kernel tests hold them
+/// equal to the definition bit for bit), but tract sums the dequantized floats in its own
+/// order, so a value within rounding of half a grid step can take the neighbouring step in one
+/// engine and not in the other, and that step is carried on. Such a step is rare, and small:
+/// - at most [`INT8_DIFFERING_SHARE`] of the command components may differ by more than the
+///   float [`TOLERANCE`] (seen: at most 3.3 %, `dagger-observable-int8`; a wrong scale, zero
+///   point or rounding rule moves nearly every command);
+/// - none by more than [`INT8_CARRIED_STEPS`] steps of one hidden unit through the largest
+///   weight of the command layer ([`int8_step`]; seen: at most 0.75 of one, the random int8
+///   fixture, whose small weights leave several units a step off; 0.24 for
+///   `cnn-narrow-distilled-more-observable-int8`).
+///
+/// The figures are from this machine's and CI's CPUs, whose tract kernels round differently
+/// (the int8 fixture differed by 1.5e-8 on one, 1.5e-4 on another).
+const INT8_DIFFERING_SHARE: f64 = 0.15;
+const INT8_CARRIED_STEPS: f32 = 3.0;
+
+/// How far one hidden unit a grid step off moves a command, the largest over the policy's
+/// networks ([`one_carried_step`]).
+fn int8_step(manifest: &Path) -> f32 {
+    let directory = manifest.parent().expect("a policy directory");
+    let networks = PolicyManifest::load(manifest).expect("a manifest").networks;
+    networks
+        .iter()
+        .map(|network| one_carried_step(&directory.join(network)))
+        .fold(0.0, f32::max)
+}
+
+/// One grid step of the value the network's last `Gemm` reads (the scale of the
+/// `DequantizeLinear` it comes from, through a ReLU, flatten or reshape), times the largest
+/// magnitude of that `Gemm`'s float weights: how far one hidden unit a step off moves a command.
+fn one_carried_step(network: &Path) -> f32 {
+    let bytes = std::fs::read(network).unwrap_or_else(|e| panic!("{}: {e}", network.display()));
+    let graph = pb::ModelProto::decode(bytes.as_slice())
+        .unwrap_or_else(|e| panic!("{}: {e}", network.display()))
+        .graph
+        .expect("a graph");
+    let floats = |name: &str| -> Vec<f32> {
+        let tensor = graph
+            .initializer
+            .iter()
+            .find(|t| t.name == name)
+            .unwrap_or_else(|| panic!("{}: no constant {name}", network.display()));
+        if tensor.raw_data.is_empty() {
+            tensor.float_data.clone()
+        } else {
+            tensor
+                .raw_data
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect()
+        }
+    };
+    let last = graph
+        .node
+        .iter()
+        .rev()
+        .find(|n| n.op_type == "Gemm")
+        .unwrap_or_else(|| panic!("{}: no Gemm", network.display()));
+    let largest_weight = floats(&last.input[1])
+        .iter()
+        .fold(0.0f32, |m, w| m.max(w.abs()));
+    let mut value = &last.input[0];
+    let step = loop {
+        let producer = graph
+            .node
+            .iter()
+            .find(|n| n.output.contains(value))
+            .unwrap_or_else(|| panic!("{}: {value} comes from no node", network.display()));
+        match producer.op_type.as_str() {
+            "Relu" | "Flatten" | "Reshape" => value = &producer.input[0],
+            "DequantizeLinear" => break floats(&producer.input[1])[0],
+            other => panic!(
+                "{}: the command layer reads {other}, not a grid",
+                network.display()
+            ),
+        }
+    };
+    assert!(step > 0.0 && largest_weight > 0.0, "{}", network.display());
+    step * largest_weight
+}
 
 /// Every policy the tests compare: the fixtures and every model `models/policy` ships. The
 /// paper's three rows and the one `SHIPPED` names must be there: a missing one fails.
@@ -81,14 +158,33 @@ fn load(path: &Path, engine: Engine, isa: Option<Isa>) -> OnnxPolicy {
         .0
 }
 
-/// Largest difference between two policies over the same steps (an episode, then a reset
-/// and a second one, so a recurrent state is carried and cleared).
-fn worst_difference(
+/// How two policies' commands differ over the same steps.
+struct Difference {
+    /// The largest difference of one command component.
+    worst: f32,
+    /// Components that differ by more than the float engines' [`TOLERANCE`].
+    differing: usize,
+    compared: usize,
+}
+
+impl Difference {
+    fn differing_share(&self) -> f64 {
+        self.differing as f64 / self.compared as f64
+    }
+}
+
+/// How two policies differ over the same steps (an episode, then a reset and a second one,
+/// so a recurrent state is carried and cleared).
+fn difference(
     a: &mut OnnxPolicy,
     b: &mut OnnxPolicy,
     steps: &[(Box<TopThumbnail>, Box<BottomThumbnail>)],
-) -> f32 {
-    let mut worst = 0.0f32;
+) -> Difference {
+    let mut found = Difference {
+        worst: 0.0,
+        differing: 0,
+        compared: 0,
+    };
     for episode in 0..2 {
         a.reset();
         b.reset();
@@ -102,11 +198,13 @@ fn worst_difference(
                 .unwrap_or_else(|e| panic!("episode {episode} step {step}: {e}"));
             for (u, v) in [(x.forward, y.forward), (x.left, y.left), (x.turn, y.turn)] {
                 assert!(u.is_finite() && v.is_finite());
-                worst = worst.max((u - v).abs());
+                found.worst = found.worst.max((u - v).abs());
+                found.differing += usize::from((u - v).abs() > TOLERANCE);
+                found.compared += 1;
             }
         }
     }
-    worst
+    found
 }
 
 #[test]
@@ -125,24 +223,39 @@ fn the_engine_matches_tract_on_every_model_and_instruction_set() {
                 path.display(),
                 compiled.engine()
             );
-            let worst = worst_difference(&mut compiled, &mut tract, &steps);
-            println!(
-                "{} ({isa}): max |engine - tract| = {worst:.2e}",
-                path.display()
-            );
+            let found = difference(&mut compiled, &mut tract, &steps);
             let manifest = PolicyManifest::load(&path).expect("a manifest");
             let recurrent = manifest.recurrent.is_some();
             // An int8 manifest runs on the integer kernels, not on its float reading.
             let int8 = manifest.precision == Precision::Int8;
             assert_eq!(compiled.engine().int8, int8, "{}", path.display());
-            let tolerance = if int8 {
-                INT8_TOLERANCE
+            let (tolerance, most_differing) = if int8 {
+                (INT8_CARRIED_STEPS * int8_step(&path), INT8_DIFFERING_SHARE)
             } else if recurrent {
-                RECURRENT_TOLERANCE
+                (RECURRENT_TOLERANCE, 1.0)
             } else {
-                TOLERANCE
+                (TOLERANCE, 1.0)
             };
-            assert!(worst <= tolerance, "{}, {isa}: {worst}", path.display());
+            println!(
+                "{} ({isa}): max |engine - tract| = {:.2e} (at most {tolerance:.2e}); {:.1} % of \
+                 command components differ by more than {TOLERANCE:.0e}",
+                path.display(),
+                found.worst,
+                100.0 * found.differing_share(),
+            );
+            assert!(
+                found.worst <= tolerance,
+                "{}, {isa}: {}",
+                path.display(),
+                found.worst
+            );
+            assert!(
+                found.differing_share() <= most_differing,
+                "{}, {isa}: {} of {} components differ",
+                path.display(),
+                found.differing,
+                found.compared
+            );
             checked += 1;
         }
     }
