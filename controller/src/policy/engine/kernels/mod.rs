@@ -117,7 +117,13 @@ impl<M: MulAdd> Kernels for Generic<M> {
         out: &mut [f32],
     ) {
         let row = first_row;
+        // Four channels (the narrow networks' first layers) fill one SSE vector: eight pixels
+        // at a time, as eight channels do, where the any-width loop took a scalar multiply-add
+        // and its bounds checks per product (callgrind, the narrower float network's whole
+        // tick: 16.2 M -> 3.1 M instructions on avx2+fma, 18.7 M -> 3.1 M on sse4.2). Both sum
+        // each output's products in the same order from the bias: the same numbers, bit for bit.
         match shape.out_channels {
+            4 => portable::conv::<M, 4, 8>(shape, padded, weights, bias, relu, row, out),
             8 => portable::conv::<M, 8, 8>(shape, padded, weights, bias, relu, row, out),
             16 => portable::conv::<M, 16, 4>(shape, padded, weights, bias, relu, row, out),
             32 => portable::conv::<M, 32, 2>(shape, padded, weights, bias, relu, row, out),

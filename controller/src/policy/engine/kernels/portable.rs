@@ -252,3 +252,54 @@ pub(crate) fn lstm_cell(gates: &[f32], c: &mut [f32], h: &mut [f32]) {
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::engine::kernels::{Fused, Separate};
+
+    /// Seeded values in -0.5..0.5: every product rounds, so a different order of sums shows.
+    fn values(count: usize, seed: u32) -> Vec<f32> {
+        (0..count)
+            .map(|i| {
+                let mixed = (i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed);
+                (mixed >> 9) as f32 / (1u32 << 23) as f32 - 0.5
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_blocked_convolution_gives_the_any_width_loops_numbers_bit_for_bit() {
+        // Widths that leave a remainder after the blocks of eight pixels, strides 1 and 2.
+        for (out_width, stride, in_channels, relu) in [
+            (13, 1, 1, true),
+            (8, 2, 3, false),
+            (21, 2, 4, true),
+            (1, 1, 2, false),
+        ] {
+            let shape = ConvShape {
+                padded_width: (out_width - 1) * stride + 5,
+                in_channels,
+                out_channels: 4,
+                kernel: [5, 5],
+                stride: [stride, stride],
+                out: [3, out_width],
+            };
+            let rows = (shape.out[0] - 1) * stride + 5;
+            let padded = values(rows * shape.padded_width * in_channels, 1);
+            let weights = values(25 * in_channels * 4, 2);
+            let bias = values(4, 3);
+            let size = shape.out[0] * out_width * 4;
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let (mut blocked, mut any) = (vec![0.0; size], vec![0.0; size]);
+            conv::<Separate, 4, 8>(&shape, &padded, &weights, &bias, relu, 0, &mut blocked);
+            conv_any::<Separate>(&shape, &padded, &weights, &bias, relu, 0, &mut any);
+            assert_eq!(bits(&blocked), bits(&any), "{shape:?}");
+            assert!(blocked.iter().any(|&x| x != 0.0));
+            // One rounding per product (the AVX2 path's; `fmaf` here, the same numbers).
+            conv::<Fused, 4, 8>(&shape, &padded, &weights, &bias, relu, 0, &mut blocked);
+            conv_any::<Fused>(&shape, &padded, &weights, &bias, relu, 0, &mut any);
+            assert_eq!(bits(&blocked), bits(&any), "{shape:?}");
+        }
+    }
+}
