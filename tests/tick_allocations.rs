@@ -188,6 +188,8 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
         "policy/cnn-modal",
         // Its 4-output layer runs SSSE3's panels of 4 (the narrow network's V5 tick).
         "policy/cnn-narrow-observable-int8",
+        // Its 4-output float layers run the blocked portable convolution on every set.
+        "policy/cnn-narrower-distilled-more-observable",
         shipped.as_str(),
         robot.as_str(),
     ] {
