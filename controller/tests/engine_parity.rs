@@ -92,7 +92,10 @@ fn one_carried_step(network: &Path) -> f32 {
             .unwrap_or_else(|| panic!("{}: {value} comes from no node", network.display()));
         match producer.op_type.as_str() {
             "Relu" | "Flatten" | "Reshape" => value = &producer.input[0],
-            "DequantizeLinear" => break floats(&producer.input[1])[0],
+            // One scale per tensor as onnxruntime writes activations; the largest if more.
+            "DequantizeLinear" => {
+                break floats(&producer.input[1]).into_iter().fold(0.0, f32::max);
+            }
             other => panic!(
                 "{}: the command layer reads {other}, not a grid",
                 network.display()
