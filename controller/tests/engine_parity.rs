@@ -58,21 +58,17 @@ fn one_carried_step(network: &Path) -> f32 {
         .unwrap_or_else(|e| panic!("{}: {e}", network.display()))
         .graph
         .expect("a graph");
+    // tract (the oracle here) reads the constants, raw or typed, as it does for its own run.
+    let resolver = tract_onnx::data_resolver::default();
     let floats = |name: &str| -> Vec<f32> {
         let tensor = graph
             .initializer
             .iter()
             .find(|t| t.name == name)
             .unwrap_or_else(|| panic!("{}: no constant {name}", network.display()));
-        if tensor.raw_data.is_empty() {
-            tensor.float_data.clone()
-        } else {
-            tensor
-                .raw_data
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect()
-        }
+        tract_onnx::tensor::load_tensor(&*resolver, tensor, None)
+            .and_then(|t| Ok(t.try_as_plain_ram()?.as_slice::<f32>()?.to_vec()))
+            .unwrap_or_else(|e| panic!("{}: {name}: {e}", network.display()))
     };
     let last = graph
         .node

@@ -24,10 +24,11 @@ import pathlib
 import statistics
 import sys
 import time
-import tomllib
 
 import numpy as np
 import onnxruntime as ort
+
+from . import manifest as policy_manifest
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "models" / "fixtures"
@@ -87,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
             manifest = directory / "policy.toml"
             if not manifest.is_file():
                 parser.error(f"--policy {directory}: no policy.toml there")
-            networks = tomllib.loads(manifest.read_text()).get("networks", [])
+            networks = policy_manifest.load(manifest).get("networks", [])
             if len(networks) != 1:
                 parser.error(f"--policy {directory}: {len(networks)} networks; only one-network policies are timed")
             kinds[directory.name] = directory / networks[0]
