@@ -13,6 +13,7 @@ use anyhow::Context;
 use clap::Args;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::tick_stats::TickStats;
+use dribble_sim::conditions::Conditions;
 use dribble_sim::dataset::Outcome;
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
@@ -39,6 +40,14 @@ pub struct EvalArgs {
     /// `test` (seeds 10000..10019), `train` (0..99) or a seed range such as `10000..10005`.
     #[arg(long, default_value = "test")]
     episodes: Episodes,
+    /// What the cameras see the episodes under: `clean` (the paper's render), one condition
+    /// or several as NAME:SEVERITY[,NAME:SEVERITY...] with severities 1 (slight) to 5
+    /// (harsh), e.g. `noise:3` or `light:2,venue:4`, or `randomized` (each episode draws
+    /// its own from its seed, as training does). Names: exposure, contrast, noise,
+    /// white-balance, motion-blur, lens, light, venue, unseen-venue, robots. Written into
+    /// the trajectories file.
+    #[arg(long, visible_alias = "conditions", default_value = "clean")]
+    condition: Conditions,
     /// Where to write the trajectory plot.
     #[arg(long, default_value = "eval_trajectories.png")]
     plot: PathBuf,
@@ -86,6 +95,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     };
     let policy_path = (args.driver != "expert").then(|| PathBuf::from(&args.driver));
     describe_driver(args, policy_path.as_deref())?;
+    if !args.condition.is_clean() {
+        println!("conditions: {}", args.condition);
+    }
     let seeds = args.episodes.0.clone();
     if args.jobs > 1 && seeds.end - seeds.start > 1 {
         return run_in_jobs(args, seeds, policy_path.is_some());
@@ -177,6 +189,7 @@ fn run_settings(args: &EvalArgs, policy_path: Option<&Path>) -> anyhow::Result<R
         engine: format!("{:?}", args.controller.engine),
         isa: format!("{:?}", args.controller.isa),
         transport: format!("{:?}", args.controller.transport),
+        conditions: args.condition.to_string(),
     })
 }
 
@@ -198,6 +211,9 @@ fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> an
             ),
             Teacher::Orbit => println!(
                 "driver: the orbiting teacher (the observable one, and the goal's direction only while the top camera shows the goal)"
+            ),
+            Teacher::Detector => println!(
+                "driver: the detector teacher (the observable one, seeing the ball only where enough of it is unoccluded in an image)"
             ),
         },
         Some(path) => {
@@ -290,7 +306,7 @@ fn play_here(
             results.push(result);
             continue;
         }
-        let setup = EpisodeSetup::from_seed(seed);
+        let setup = EpisodeSetup::from_seed(seed).under(args.condition);
         let mut no_observer = NoObserver;
         let observer: &mut dyn EpisodeObserver = match foxglove.as_mut() {
             Some(foxglove) => foxglove,

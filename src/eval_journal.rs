@@ -37,6 +37,13 @@ pub struct RunSettings {
     pub engine: String,
     pub isa: String,
     pub transport: String,
+    /// The conditions the episodes are seen under (`clean` in journals written before).
+    #[serde(default = "clean")]
+    pub conditions: String,
+}
+
+fn clean() -> String {
+    "clean".to_owned()
 }
 
 impl RunSettings {
@@ -199,6 +206,7 @@ mod tests {
             engine: "Compiled".to_owned(),
             isa: "Some(Portable)".to_owned(),
             transport: "Iceoryx2".to_owned(),
+            conditions: "clean".to_owned(),
         }
     }
 

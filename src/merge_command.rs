@@ -77,6 +77,7 @@ fn configuration(index: &DatasetIndex) -> serde_json::Value {
         "expert": index.expert,
         "driver": index.driver,
         "teacher": index.teacher.as_deref().unwrap_or("paper"),
+        "conditions": index.conditions.as_deref().unwrap_or("clean"),
     })
 }
 

@@ -8,8 +8,9 @@ use std::time::Instant;
 use anyhow::{Context, bail, ensure};
 use clap::{Args, ValueEnum};
 use dribble_controller::policy::manifest::PolicyManifest;
+use dribble_sim::conditions::Conditions;
 use dribble_sim::dataset::{DatasetIndex, EpisodeEntry, EpisodeRecording, episode_file};
-use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::episode::{EpisodeSetup, reserved_range};
 use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
@@ -62,6 +63,11 @@ pub struct RecordArgs {
     /// Recorded in dataset.json.
     #[arg(long, default_value_t = Teacher::Paper)]
     expert: Teacher,
+    /// What the cameras see the episodes under: `clean`, NAME:SEVERITY[,...] (see `dribble
+    /// eval --help`) or `randomized` (each episode draws its own conditions from its seed,
+    /// never the unseen venue). Recorded in dataset.json, per episode.
+    #[arg(long, visible_alias = "conditions", default_value = "clean")]
+    condition: Conditions,
     #[command(flatten)]
     controller: ControllerOptions,
     #[command(flatten)]
@@ -69,6 +75,9 @@ pub struct RecordArgs {
 }
 
 pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
+    if args.label_with.is_some() {
+        refuse_reserved_seeds(args.episodes.0.clone())?;
+    }
     fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let config = EpisodeConfig {
         time_limit_s: args.time_limit,
@@ -97,7 +106,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let mut foxglove = args.foxglove.observer(true)?;
     for seed in todo.iter().copied() {
         progress.set_message(format!("seed {seed}"));
-        let setup = EpisodeSetup::from_seed(seed);
+        let setup = EpisodeSetup::from_seed(seed).under(args.condition);
         let mut recording = EpisodeRecording::default();
         let expert = Expert::teaching(
             args.expert,
@@ -166,6 +175,22 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         );
     }
     report_dataset(args, &mut index, !todo.is_empty())
+}
+
+/// A labelled round (DAgger) is training data: none of its seeds may be one kept for choosing
+/// or reporting (test, selection, fresh).
+fn refuse_reserved_seeds(seeds: std::ops::Range<u64>) -> anyhow::Result<()> {
+    let reserved: Vec<String> = seeds
+        .filter_map(|seed| reserved_range(seed).map(|range| format!("{seed} ({range})")))
+        .take(5)
+        .collect();
+    ensure!(
+        reserved.is_empty(),
+        "a labelled round is training data, and {} are seeds kept for choosing or reporting, \
+         never trained on: DAgger rounds take seeds from 1000..9999",
+        reserved.join(", ")
+    );
+    Ok(())
 }
 
 /// The asked-for seeds whose episodes are not in the dataset yet (a rerun resumes).
@@ -276,6 +301,8 @@ fn keep_episode(
         duration_s: f64::from(result.duration_s),
         bytes,
         sha256: Some(sha256),
+        conditions: (!args.condition.is_clean())
+            .then(|| args.condition.for_episode(seed).to_string()),
     });
     index.save(&args.out)?;
     Ok(bytes)
@@ -298,6 +325,13 @@ fn open_index(
                 differences.push(format!(
                     "teacher: {recorded_teacher} there, {} now",
                     args.expert
+                ));
+            }
+            let recorded_conditions = index.conditions.as_deref().unwrap_or("clean");
+            if recorded_conditions != args.condition.to_string() {
+                differences.push(format!(
+                    "conditions: {recorded_conditions} there, {} now",
+                    args.condition
                 ));
             }
             config_differences("", &index.simulator, &simulator, &mut differences);
@@ -323,6 +357,7 @@ fn open_index(
             content_hash: None,
             driver,
             teacher: Some(args.expert.name().into()),
+            conditions: (!args.condition.is_clean()).then(|| args.condition.to_string()),
         },
     })
 }
@@ -420,5 +455,28 @@ fn config_differences(
         }
         (a, b) if a != b => out.push(format!("{path}: recorded {a}, now {b}")),
         _ => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_labelled_round_refuses_the_seeds_kept_for_choosing_and_reporting() {
+        for seeds in [
+            20_000..20_005,
+            10_000..10_020,
+            30_050..30_051,
+            9_990..10_001,
+        ] {
+            let error = refuse_reserved_seeds(seeds.clone()).expect_err("refused");
+            assert!(
+                error.to_string().contains("never trained on"),
+                "{seeds:?}: {error}"
+            );
+        }
+        assert!(refuse_reserved_seeds(1000..1020).is_ok());
+        assert!(refuse_reserved_seeds(0..100).is_ok());
     }
 }

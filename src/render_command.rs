@@ -10,6 +10,7 @@ use dribble_controller::{
     BottomFrame, BottomThumbnail, CameraPosition, SpeedCommand, TopFrame, TopThumbnail,
 };
 use dribble_sim::camera_geometry::CameraGeometry;
+use dribble_sim::conditions::Conditions;
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::image_output::{frame_to_rgb, save_thumbnail};
@@ -41,23 +42,40 @@ pub struct RenderArgs {
     /// Walk command, normalised: turn (counter-clockwise).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     turn: f32,
+    /// What the cameras see the episode under: `clean`, or NAME:SEVERITY[,...] (see `dribble
+    /// eval --help`); a frame is rendered a camera period before the pictured one, so blur
+    /// follows the camera's motion.
+    #[arg(long, visible_alias = "conditions", default_value = "clean")]
+    condition: Conditions,
 }
 
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let command = SpeedCommand::new(args.forward, args.left, args.turn)
         .context("--forward, --left and --turn must be finite")?;
-    let setup = EpisodeSetup::from_seed(args.seed);
+    let setup = EpisodeSetup::from_seed(args.seed).under(args.condition);
     let cameras = CameraGeometry::nao();
     let world = WorldConfig::default();
     let mut renderer = Renderer::new(&FieldGeometry::SPL, world.goal_depth, &cameras)?;
     println!("adapter: {}", renderer.adapter());
+    renderer.begin_episode(&setup.conditions.resolve(setup.seed));
     let mut simulation = Simulation::new(&setup, world, WalkConfig::default(), cameras);
     simulation.set_command(command);
     let steps = (args.seconds.max(0.0) * STEPS_PER_SECOND as f32).round() as u64;
+    // A camera period before the pictured frame (the camera's motion for blur and skew).
+    let earlier = steps.saturating_sub(STEPS_PER_SECOND / 30);
     let mut robot_path = vec![Vec2::new(setup.robot.x, setup.robot.y)];
     let mut ball_path = vec![setup.ball];
-    for _ in 0..steps {
+    let mut top = TopFrame::new_boxed();
+    let mut bottom = BottomFrame::new_boxed();
+    for step in 0..steps {
+        if step == earlier && !setup.conditions.is_clean() {
+            let scene = simulation.scene();
+            let top_camera = simulation.camera(CameraPosition::Top);
+            let bottom_camera = simulation.camera(CameraPosition::Bottom);
+            renderer.render(CameraPosition::Top, &top_camera, &scene, &mut top)?;
+            renderer.render(CameraPosition::Bottom, &bottom_camera, &scene, &mut bottom)?;
+        }
         simulation.step();
         let pose = simulation.world().robot_pose();
         robot_path.push(Vec2::new(pose.x, pose.y));
@@ -65,8 +83,6 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     }
 
     let scene = simulation.scene();
-    let mut top = TopFrame::new_boxed();
-    let mut bottom = BottomFrame::new_boxed();
     let top_camera = simulation.camera(CameraPosition::Top);
     let bottom_camera = simulation.camera(CameraPosition::Bottom);
     renderer.render(CameraPosition::Top, &top_camera, &scene, &mut top)?;

@@ -9,6 +9,7 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use dribble_controller::tick_stats::TickStats;
+use dribble_sim::conditions::Conditions;
 use dribble_sim::dataset::Outcome;
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::runner::EpisodeResult;
@@ -19,6 +20,10 @@ use serde::{Deserialize, Serialize};
 struct RecordedEpisode {
     ball: Vec<[f64; 2]>,
     computed_commands: u64,
+    /// The conditions this episode was seen under, when not clean (a randomized run's
+    /// draw for the seed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    conditions: Option<String>,
     duration_s: f64,
     failure: Option<String>,
     /// When the ball was first inside either image, s (absent: never, or an older file).
@@ -37,6 +42,9 @@ struct RecordedEpisode {
 
 #[derive(Debug, Deserialize, Serialize)]
 struct RecordedEvaluation {
+    /// The run's conditions (`dribble eval --condition`), absent when clean.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    conditions: Option<String>,
     engine: Option<String>,
     episodes: Vec<RecordedEpisode>,
 }
@@ -47,7 +55,13 @@ pub fn write_trajectories(
     engine: Option<&str>,
     path: &Path,
 ) -> anyhow::Result<()> {
+    let conditions = results
+        .first()
+        .map(|r| r.setup.conditions)
+        .filter(|c| !c.is_clean())
+        .map(|c| c.to_string());
     let recorded = RecordedEvaluation {
+        conditions,
         engine: engine.map(str::to_owned),
         episodes: results.iter().map(recorded_episode).collect(),
     };
@@ -83,6 +97,13 @@ fn recorded_episode(result: &EpisodeResult) -> RecordedEpisode {
     RecordedEpisode {
         ball: points(&result.ball_path),
         computed_commands: result.computed_commands,
+        conditions: (!result.setup.conditions.is_clean()).then(|| {
+            result
+                .setup
+                .conditions
+                .for_episode(result.setup.seed)
+                .to_string()
+        }),
         duration_s: result.duration_s.into(),
         failure: result.failure.clone(),
         first_sighting_s: result.first_sighting_s.map(f64::from),
@@ -97,6 +118,11 @@ fn recorded_episode(result: &EpisodeResult) -> RecordedEpisode {
 /// What the file does not keep, the tick times (and the distance walked in older files), is
 /// left empty; the start is the seed's.
 fn episode_result(episode: RecordedEpisode) -> EpisodeResult {
+    let conditions = episode
+        .conditions
+        .as_deref()
+        .and_then(|text| text.parse::<Conditions>().ok())
+        .unwrap_or(Conditions::CLEAN);
     let points = |points: &[[f64; 2]]| {
         points
             .iter()
@@ -104,7 +130,7 @@ fn episode_result(episode: RecordedEpisode) -> EpisodeResult {
             .collect()
     };
     EpisodeResult {
-        setup: EpisodeSetup::from_seed(episode.seed),
+        setup: EpisodeSetup::from_seed(episode.seed).under(conditions),
         outcome: episode.outcome,
         duration_s: episode.duration_s as f32,
         distance_walked_m: episode.walked_m.unwrap_or(0.0) as f32,

@@ -85,16 +85,23 @@ def summarise_episode(episode: dict) -> dict:
     summary["turned_rad"] = round(turned_rad(heading), 3) if heading else None
     summary["first_sighting_s"] = episode.get("first_sighting_s")
     summary["failure_class"] = failure_class(summary)
+    if episode.get("conditions"):
+        summary["conditions"] = episode["conditions"]
     return summary
 
 
 def summarise(trajectories: dict) -> dict:
     # The engine that ran the policy ("compiled (avx2+fma)", "tract"): absent from files
     # written before `dribble eval` recorded it, and null for the expert.
-    return {
+    # The conditions the episodes were seen under (`dribble eval --condition`): absent when
+    # clean, and in files written before there were conditions.
+    summary = {
         "engine": trajectories.get("engine"),
         "episodes": [summarise_episode(e) for e in trajectories["episodes"]],
     }
+    if trajectories.get("conditions"):
+        summary["conditions"] = trajectories["conditions"]
+    return summary
 
 
 def main(argv: list[str] | None = None) -> int:

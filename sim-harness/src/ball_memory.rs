@@ -14,9 +14,11 @@ use glam::{Vec2, Vec3};
 
 use crate::camera_geometry::CameraGeometry;
 use crate::camera_model::CameraModel;
+use crate::conditions::Occluder;
+use crate::conditions::venue::goal_occluders;
 use crate::field::FieldGeometry;
 use crate::pose::FieldPose;
-use crate::visibility::Visibility;
+use crate::visibility::{SightingRule, Visibility};
 use crate::walk::HeadSway;
 
 /// What the teacher believes about the ball at one decision.
@@ -37,6 +39,8 @@ pub struct BallMemory {
     last_seen: Option<(Vec2, f64)>,
     /// The side (sign of the bearing, robot frame) the ball was on when last seen.
     last_side: Option<f32>,
+    /// When a camera counts as seeing the ball.
+    rule: SightingRule,
 }
 
 impl BallMemory {
@@ -51,6 +55,31 @@ impl BallMemory {
             field,
             last_seen: None,
             last_side: None,
+            rule: SightingRule::CentreInImage,
+        }
+    }
+
+    /// A memory whose sightings are a detector's: enough of the ball unoccluded in an image,
+    /// never through the goals' posts and bars (more occluders with [`Self::see_among`]).
+    pub fn detecting(cameras: CameraGeometry, field: FieldGeometry) -> Self {
+        Self {
+            rule: SightingRule::Detector {
+                occluders: goal_occluders(&field),
+            },
+            ..Self::new(cameras, field)
+        }
+    }
+
+    pub fn rule(&self) -> &SightingRule {
+        &self.rule
+    }
+
+    /// For a detector's memory: what stands about in this episode (robots, people) hides
+    /// the ball too, besides the goals.
+    pub fn see_among(&mut self, occluders: &[Occluder]) {
+        if let SightingRule::Detector { occluders: current } = &mut self.rule {
+            *current = goal_occluders(&self.field);
+            current.extend_from_slice(occluders);
         }
     }
 
@@ -69,16 +98,13 @@ impl BallMemory {
         target_side: f32,
         time_s: f64,
     ) -> BallBelief {
-        let seen =
-            Visibility::of(&self.cameras, &self.field, robot, ball, target_side).ball_in_either();
+        let seen = self.sees(robot, ball, target_side);
         if seen {
             self.remember(robot, ball, time_s);
             return BallBelief::At(ball);
         }
         if let Some((remembered, when)) = self.last_seen {
-            let should_see =
-                Visibility::of(&self.cameras, &self.field, robot, remembered, target_side)
-                    .ball_in_either();
+            let should_see = self.sees(robot, remembered, target_side);
             if should_see || time_s - when > Self::FORGET_AFTER_S {
                 self.last_seen = None;
             } else {
@@ -102,6 +128,16 @@ impl BallMemory {
             self.field.goal_height / 2.0,
         );
         top.project(middle).is_some_and(|p| top.contains(p))
+    }
+
+    fn sees(&self, robot: FieldPose, ball: Vec2, target_side: f32) -> bool {
+        match &self.rule {
+            SightingRule::CentreInImage => {
+                Visibility::of(&self.cameras, &self.field, robot, ball, target_side)
+                    .ball_in_either()
+            }
+            rule => rule.sees_ball(&self.cameras, &self.field, robot, ball),
+        }
     }
 
     fn remember(&mut self, robot: FieldPose, ball: Vec2, time_s: f64) {

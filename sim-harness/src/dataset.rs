@@ -324,6 +324,9 @@ pub struct EpisodeEntry {
     /// SHA-256 of the `.npz` file, lowercase hex.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sha256: Option<String>,
+    /// The conditions the episode was seen under (`crate::conditions`), absent when clean.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub conditions: Option<String>,
 }
 
 /// SHA-256 of `bytes` as lowercase hex.
@@ -386,6 +389,10 @@ pub struct DatasetIndex {
     /// "Teachers"); absent in files written before there were two, which the paper's labelled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub teacher: Option<String>,
+    /// The conditions the recording ran under (`clean` when absent; `randomized`: each
+    /// episode names its own draw).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub conditions: Option<String>,
 }
 
 impl DatasetIndex {

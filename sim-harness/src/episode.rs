@@ -4,12 +4,29 @@ use glam::Vec2;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use crate::conditions::Conditions;
 use crate::pose::FieldPose;
 
 /// Seeds of the training episodes.
 pub const TRAINING_SEEDS: core::ops::Range<u64> = 0..100;
-/// Seeds of the test episodes.
+/// Seeds of the test episodes (reporting only).
 pub const TEST_SEEDS: core::ops::Range<u64> = 10_000..10_020;
+/// Seeds of the selection episodes, where choices are made (never training data).
+pub const SELECTION_SEEDS: core::ops::Range<u64> = 20_000..20_050;
+/// Seeds of the 100 fresh test episodes (reporting only).
+pub const FRESH_SEEDS: core::ops::Range<u64> = 30_000..30_100;
+
+/// The name of the range kept for choosing or reporting that `seed` lies in, if any: such
+/// an episode is never training data (DESIGN.md, "Metrics").
+pub fn reserved_range(seed: u64) -> Option<&'static str> {
+    [
+        ("test", TEST_SEEDS),
+        ("selection", SELECTION_SEEDS),
+        ("fresh", FRESH_SEEDS),
+    ]
+    .into_iter()
+    .find_map(|(name, range)| range.contains(&seed).then_some(name))
+}
 
 /// Where an episode starts: the same seed always gives the same placement.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -21,6 +38,9 @@ pub struct EpisodeSetup {
     pub ball: Vec2,
     /// +1 for the goal at +x, -1 for the goal at -x: the goal on the ball's side.
     pub target_side: f32,
+    /// What the cameras see it under (clean: the paper's render); its random draws come
+    /// from `seed` too.
+    pub conditions: Conditions,
 }
 
 impl EpisodeSetup {
@@ -41,7 +61,13 @@ impl EpisodeSetup {
             robot,
             ball,
             target_side: side,
+            conditions: Conditions::CLEAN,
         }
+    }
+
+    /// The same episode under `conditions`.
+    pub fn under(self, conditions: Conditions) -> Self {
+        Self { conditions, ..self }
     }
 
     /// A setup placed by hand (tests, demonstrations).
@@ -51,6 +77,7 @@ impl EpisodeSetup {
             robot,
             ball,
             target_side: if ball.x >= 0.0 { 1.0 } else { -1.0 },
+            conditions: Conditions::CLEAN,
         }
     }
 }
@@ -67,6 +94,19 @@ mod tests {
             assert!((1.0..=3.0).contains(&setup.ball.x.abs()), "{setup:?}");
             assert!(setup.ball.y.abs() <= 2.0);
             assert_eq!(setup.target_side, setup.ball.x.signum());
+        }
+    }
+
+    #[test]
+    fn reserved_ranges_are_named_and_training_seeds_are_not() {
+        assert_eq!(reserved_range(10_019), Some("test"));
+        assert_eq!(reserved_range(20_000), Some("selection"));
+        assert_eq!(reserved_range(30_099), Some("fresh"));
+        for seed in TRAINING_SEEDS
+            .chain(1000..1010)
+            .chain([20_050, 10_020, 30_100])
+        {
+            assert_eq!(reserved_range(seed), None, "{seed}");
         }
     }
 

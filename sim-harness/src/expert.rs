@@ -23,8 +23,10 @@ use glam::Vec2;
 
 use crate::ball_memory::{BallBelief, BallMemory};
 use crate::camera_geometry::CameraGeometry;
+use crate::conditions::EpisodeLook;
 use crate::field::FieldGeometry;
 use crate::pose::{FieldPose, wrap_angle};
+use crate::visibility::SightingRule;
 
 /// Which teacher labels and drives (DESIGN.md, "Teachers").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -37,16 +39,21 @@ pub enum Teacher {
     /// The observable teacher, and the goal's direction only while the top camera shows the
     /// target goal: straight to the ball, then around it to the left until the goal is seen.
     Orbit,
+    /// The observable teacher seeing as a detector does: the ball only while at least
+    /// `visibility::MIN_VISIBLE_THUMBNAIL_PIXELS` of it are unoccluded inside an image, never
+    /// through a goal post, a bar, a robot or a person.
+    Detector,
 }
 
 impl Teacher {
-    pub const ALL: [Self; 3] = [Self::Paper, Self::Observable, Self::Orbit];
+    pub const ALL: [Self; 4] = [Self::Paper, Self::Observable, Self::Orbit, Self::Detector];
 
     pub fn name(self) -> &'static str {
         match self {
             Self::Paper => "paper",
             Self::Observable => "observable",
             Self::Orbit => "orbit",
+            Self::Detector => "detector",
         }
     }
 }
@@ -64,7 +71,9 @@ impl std::str::FromStr for Teacher {
         Self::ALL
             .into_iter()
             .find(|teacher| teacher.name() == text)
-            .ok_or_else(|| format!("unknown teacher {text:?}: paper, observable or orbit"))
+            .ok_or_else(|| {
+                format!("unknown teacher {text:?}: paper, observable, orbit or detector")
+            })
     }
 }
 
@@ -184,9 +193,11 @@ impl Expert {
         cameras: CameraGeometry,
     ) -> Self {
         let mut expert = Self::new(config, field);
-        if teacher != Teacher::Paper {
-            expert.memory = Some(BallMemory::new(cameras, field));
-        }
+        expert.memory = match teacher {
+            Teacher::Paper => None,
+            Teacher::Detector => Some(BallMemory::detecting(cameras, field)),
+            Teacher::Observable | Teacher::Orbit => Some(BallMemory::new(cameras, field)),
+        };
         expert.orbit = teacher == Teacher::Orbit;
         expert
     }
@@ -194,8 +205,19 @@ impl Expert {
     pub fn teacher(&self) -> Teacher {
         match (&self.memory, self.orbit) {
             (None, _) => Teacher::Paper,
+            (Some(memory), false) if memory.rule() != &SightingRule::CentreInImage => {
+                Teacher::Detector
+            }
             (Some(_), false) => Teacher::Observable,
             (Some(_), true) => Teacher::Orbit,
+        }
+    }
+
+    /// Starts an episode seen through `look`: a detector's sightings are hidden by what
+    /// stands about in it too.
+    pub fn see_among(&mut self, look: &EpisodeLook) {
+        if let Some(memory) = &mut self.memory {
+            memory.see_among(&look.layout.occluders());
         }
     }
 

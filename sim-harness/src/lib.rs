@@ -9,6 +9,7 @@
 pub mod ball_memory;
 pub mod camera_geometry;
 pub mod camera_model;
+pub mod conditions;
 pub mod controller_link;
 pub mod dataset;
 pub mod episode;

@@ -217,6 +217,10 @@ pub fn run_episode_observed(
     observer: &mut dyn EpisodeObserver,
 ) -> Result<EpisodeResult, RenderError> {
     observer.start(setup);
+    let look = setup.conditions.resolve(setup.seed);
+    if let Some(renderer) = renderer.as_deref_mut() {
+        renderer.begin_episode(&look);
+    }
     let truth = |simulation: &Simulation| GroundTruth {
         robot: simulation.world().robot_pose(),
         ball: simulation.world().ball().position.truncate(),
@@ -229,18 +233,22 @@ pub fn run_episode_observed(
         phase: Phase::Search,
     }));
     let (is_expert, policy): (bool, Box<dyn Policy + '_>) = match driver {
-        Driver::Expert(expert) => (
-            true,
-            Box::new(ExpertPolicy {
-                expert,
-                channel: Rc::clone(&channel),
-            }),
-        ),
+        Driver::Expert(mut expert) => {
+            expert.see_among(&look);
+            (
+                true,
+                Box::new(ExpertPolicy {
+                    expert,
+                    channel: Rc::clone(&channel),
+                }),
+            )
+        }
         Driver::Policy(policy) => (false, Box::new(policy)),
         Driver::Controller(link) => {
             return run_linked(setup, config, link, None, renderer, observer);
         }
-        Driver::LabelledController(link, labels) => {
+        Driver::LabelledController(link, mut labels) => {
+            labels.expert.see_among(&look);
             let labelling = Labelling {
                 labels: *labels,
                 recording,

@@ -88,6 +88,7 @@ impl Simulation {
         let ball = self.world.ball();
         SceneState {
             ball: Some((ball.position, ball.rotation)),
+            time_ns: self.world.time().as_nanos(),
         }
     }
 

@@ -43,12 +43,21 @@ fn ball_centroid<const W: usize, const H: usize>(
     let mut without = CameraFrame::<W, H>::new_boxed();
     let scene = SceneState {
         ball: Some((ball, Quat::IDENTITY)),
+        time_ns: 0,
     };
     renderer
         .render(position, camera, &scene, &mut with)
         .expect("render");
     renderer
-        .render(position, camera, &SceneState { ball: None }, &mut without)
+        .render(
+            position,
+            camera,
+            &SceneState {
+                ball: None,
+                time_ns: 0,
+            },
+            &mut without,
+        )
         .expect("render");
     let (mut sum_u, mut sum_v, mut weight) = (0.0f64, 0.0f64, 0.0f64);
     for y in 0..H {
@@ -175,7 +184,10 @@ fn top_view_without_ball(pose: FieldPose) -> (CameraModel, Box<TopFrame>) {
         .render(
             CameraPosition::Top,
             &camera,
-            &SceneState { ball: None },
+            &SceneState {
+                ball: None,
+                time_ns: 0,
+            },
             &mut frame,
         )
         .expect("render");

@@ -2,6 +2,12 @@
 //! multisampling (so that lines far away thin out instead of vanishing), resolved, packed
 //! into YUYV by a compute shader and read back straight into a camera frame.
 //!
+//! An episode's conditions ([`crate::conditions`]) change three things, each only when one
+//! applies, so the clean render stays the paper's bit for bit: the venue's mesh, a lit
+//! pipeline (`scene_lit.wgsl`: a directional light's shadows and bright spots) in place of
+//! the flat one, and an effects pass (`camera_effects.wgsl`: exposure, noise, white balance,
+//! blur and skew, lens, contrast) in place of the plain YUYV packing.
+//!
 //! On machines without a GPU it runs on lavapipe, Mesa's Vulkan driver on the CPU
 //! (Debian's `mesa-vulkan-drivers`); its output is the same from run to run.
 
@@ -15,22 +21,30 @@ use wgpu::util::DeviceExt;
 
 use crate::camera_geometry::CameraGeometry;
 use crate::camera_model::CameraModel;
+use crate::conditions::camera::CameraEffects;
+use crate::conditions::{EpisodeLook, Occluder};
 use crate::field::FieldGeometry;
 
-pub use scene::{Mesh, Vertex, ball_mesh, static_scene};
+pub use scene::{Mesh, Vertex, ball_mesh, static_scene, static_scene_in};
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const SAMPLES: u32 = 4;
 /// Uniform buffer offsets must be multiples of this (wgpu's guaranteed minimum).
 const UNIFORM_STRIDE: u64 = 256;
-/// Above the walls: a pale, slightly blue hall.
-const SKY: wgpu::Color = wgpu::Color {
-    r: 0.78,
-    g: 0.8,
-    b: 0.84,
-    a: 1.0,
-};
+/// Shadow casters and bright spots the lit pipeline takes (`scene_lit.wgsl`).
+const MAX_CASTERS: usize = 64;
+const MAX_SPOTS: usize = 8;
+
+/// The lit pipeline's uniform (`Light` in `scene_lit.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct LightUniform {
+    towards_share: [f32; 4],
+    counts: [u32; 4],
+    casters: [[f32; 4]; 2 * MAX_CASTERS],
+    spots: [[f32; 4]; 2 * MAX_SPOTS],
+}
 
 /// Why rendering could not start or a frame could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -66,6 +80,9 @@ pub enum RenderError {
 pub struct SceneState {
     /// The ball's centre and orientation, or `None` to leave it out.
     pub ball: Option<(Vec3, Quat)>,
+    /// Simulated time of the frame, nanoseconds since the episode's start (what the
+    /// conditions' exposure steps, drift and noise follow).
+    pub time_ns: u64,
 }
 
 struct GpuMesh {
@@ -85,6 +102,8 @@ struct CameraTarget {
     packed: wgpu::Buffer,
     readback: wgpu::Buffer,
     pack_group: wgpu::BindGroup,
+    effects: wgpu::Buffer,
+    effects_group: wgpu::BindGroup,
 }
 
 /// Renders both cameras; built once, used for every frame.
@@ -93,12 +112,22 @@ pub struct Renderer {
     queue: wgpu::Queue,
     adapter: String,
     scene_pipeline: wgpu::RenderPipeline,
+    lit_pipeline: wgpu::RenderPipeline,
     pack_pipeline: wgpu::ComputePipeline,
+    effects_pipeline: wgpu::ComputePipeline,
+    field: FieldGeometry,
+    goal_depth: f32,
     static_mesh: GpuMesh,
     ball_mesh: GpuMesh,
     models: wgpu::Buffer,
     model_group: wgpu::BindGroup,
+    light: wgpu::Buffer,
+    light_group: wgpu::BindGroup,
     targets: [CameraTarget; 2],
+    /// The episode's look: clean until [`Renderer::begin_episode`] says otherwise.
+    look: EpisodeLook,
+    /// Each camera's rotation and time at its previous frame (its angular velocity).
+    previous: [Option<(Quat, u64)>; 2],
 }
 
 impl std::fmt::Debug for Renderer {
@@ -144,33 +173,80 @@ impl Renderer {
 
         let camera_layout = uniform_layout(&device, "camera", false);
         let model_layout = uniform_layout(&device, "model", true);
-        let scene_pipeline = scene_pipeline(&device, &camera_layout, &model_layout);
-        let pack_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("pack"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
+        let scene_pipeline = render_pipeline(
+            &device,
+            "scene",
+            include_str!("scene.wgsl"),
+            &[&camera_layout, &model_layout],
+        );
+        let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("light"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: wgpu::BufferSize::new(size_of::<LightUniform>() as u64),
                 },
+                count: None,
+            }],
+        });
+        let lit_pipeline = render_pipeline(
+            &device,
+            "lit scene",
+            include_str!("scene_lit.wgsl"),
+            &[&camera_layout, &model_layout, &light_layout],
+        );
+        let light = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("light"),
+            size: size_of::<LightUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let light_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("light"),
+            layout: &light_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: light.as_entire_binding(),
+            }],
+        });
+        let effects_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("effects"),
+            entries: &[
+                image_entry(),
+                packed_entry(),
                 wgpu::BindGroupLayoutEntry {
-                    binding: 1,
+                    binding: 2,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: false },
+                        ty: wgpu::BufferBindingType::Uniform,
                         has_dynamic_offset: false,
-                        min_binding_size: None,
+                        min_binding_size: wgpu::BufferSize::new(size_of::<CameraEffects>() as u64),
                     },
                     count: None,
                 },
             ],
         });
-        let pack_pipeline = pack_pipeline(&device, &pack_layout);
+        let effects_pipeline = compute_pipeline(
+            &device,
+            "camera effects",
+            include_str!("camera_effects.wgsl"),
+            "effects_main",
+            &effects_layout,
+        );
+        let pack_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("pack"),
+            entries: &[image_entry(), packed_entry()],
+        });
+        let pack_pipeline = compute_pipeline(
+            &device,
+            "yuyv",
+            include_str!("yuyv.wgsl"),
+            "pack_main",
+            &pack_layout,
+        );
 
         let static_mesh = upload(&device, "static scene", &static_scene(field, goal_depth));
         let ball_mesh = upload(&device, "ball", &ball_mesh(field.ball_diameter / 2.0));
@@ -202,7 +278,7 @@ impl Renderer {
             camera_target(
                 &device,
                 &camera_layout,
-                &pack_layout,
+                [&pack_layout, &effects_layout],
                 mount.width,
                 mount.height,
             )
@@ -212,13 +288,71 @@ impl Renderer {
             queue,
             adapter: adapter_name,
             scene_pipeline,
+            lit_pipeline,
             pack_pipeline,
+            effects_pipeline,
+            field: *field,
+            goal_depth,
             static_mesh,
             ball_mesh,
             models,
             model_group,
+            light,
+            light_group,
             targets,
+            look: EpisodeLook::clean(),
+            previous: [None; 2],
         })
+    }
+
+    /// Sets the look of the episode about to start: its venue's mesh (built anew only when it
+    /// differs from the last one), its light, its camera effects. Until the first call, and
+    /// after a call with a clean look, frames are the paper's clean render.
+    pub fn begin_episode(&mut self, look: &EpisodeLook) {
+        if look.layout != self.look.layout {
+            let mesh = static_scene_in(&self.field, self.goal_depth, &look.layout);
+            self.static_mesh = upload(&self.device, "static scene", &mesh);
+        }
+        if let Some(sun) = &look.layout.sunlight {
+            let mut uniform = LightUniform {
+                towards_share: [sun.towards.x, sun.towards.y, sun.towards.z, sun.share],
+                counts: [0; 4],
+                casters: [[0.0; 4]; 2 * MAX_CASTERS],
+                spots: [[0.0; 4]; 2 * MAX_SPOTS],
+            };
+            // The ball first (placed at every frame), then goals, then what stands about.
+            let radius = self.field.ball_diameter / 2.0;
+            let casters = std::iter::once(Occluder::new(Vec3::ZERO, Vec3::ZERO, radius))
+                .chain(crate::conditions::venue::goal_occluders(&self.field))
+                .chain(look.layout.occluders())
+                .take(MAX_CASTERS);
+            let mut count = 0;
+            for (i, caster) in casters.enumerate() {
+                uniform.casters[2 * i] = caster.a.extend(caster.radius).to_array();
+                uniform.casters[2 * i + 1] = caster.b.extend(0.0).to_array();
+                count += 1;
+            }
+            for (i, spot) in sun.spots.iter().take(MAX_SPOTS).enumerate() {
+                let (sin, cos) = spot.angle.sin_cos();
+                uniform.spots[2 * i] = [
+                    spot.centre.x,
+                    spot.centre.y,
+                    spot.half_axes.x,
+                    spot.half_axes.y,
+                ];
+                uniform.spots[2 * i + 1] = [cos, sin, spot.gain, 0.0];
+            }
+            uniform.counts = [count, sun.spots.len().min(MAX_SPOTS) as u32, 0, 0];
+            self.queue
+                .write_buffer(&self.light, 0, bytemuck::bytes_of(&uniform));
+        }
+        self.look = look.clone();
+        self.previous = [None; 2];
+    }
+
+    /// The look frames are rendered with now.
+    pub fn look(&self) -> &EpisodeLook {
+        &self.look
     }
 
     /// The adapter in use, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, llvmpipe ...)".
@@ -258,6 +392,42 @@ impl Renderer {
                 bytemuck::bytes_of(&model.to_cols_array()),
             );
         }
+        let lit = self.look.layout.sunlight.is_some();
+        if lit {
+            // The ball's shadow: its caster follows it (a radius of 0 while it is left out).
+            let radius = scene.ball.map_or(0.0, |_| self.field.ball_diameter / 2.0);
+            let centre = scene.ball.map_or(Vec3::ZERO, |(centre, _)| centre);
+            let caster = [
+                centre.extend(radius).to_array(),
+                centre.extend(0.0).to_array(),
+            ];
+            let offset = std::mem::offset_of!(LightUniform, casters) as u64;
+            self.queue
+                .write_buffer(&self.light, offset, bytemuck::cast_slice(&caster));
+        }
+        let index = position.index();
+        let effects = (!self.look.camera.is_none()).then(|| {
+            let previous = self.previous[index].map(|(rotation, time_ns)| {
+                let dt_s = scene.time_ns.saturating_sub(time_ns) as f32 * 1e-9;
+                (rotation, dt_s)
+            });
+            self.look.camera.frame(
+                index as u32,
+                scene.time_ns,
+                scene.time_ns as f32 * 1e-9,
+                camera.rotation,
+                previous,
+                (target.width, target.height),
+                (camera.fx, camera.fy),
+            )
+        });
+        self.previous[index] = Some((camera.rotation, scene.time_ns));
+        if let Some(effects) = &effects {
+            self.queue
+                .write_buffer(&target.effects, 0, bytemuck::bytes_of(effects));
+        }
+        let [r, g, b] = self.look.layout.sky;
+        let sky = wgpu::Color { r, g, b, a: 1.0 };
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -271,7 +441,7 @@ impl Renderer {
                     depth_slice: None,
                     resolve_target: Some(&target.resolved),
                     ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(SKY),
+                        load: wgpu::LoadOp::Clear(sky),
                         store: wgpu::StoreOp::Discard,
                     },
                 })],
@@ -285,7 +455,12 @@ impl Renderer {
                 }),
                 ..Default::default()
             });
-            pass.set_pipeline(&self.scene_pipeline);
+            if lit {
+                pass.set_pipeline(&self.lit_pipeline);
+                pass.set_bind_group(2, &self.light_group, &[]);
+            } else {
+                pass.set_pipeline(&self.scene_pipeline);
+            }
             pass.set_bind_group(0, &target.camera_group, &[]);
             pass.set_bind_group(1, &self.model_group, &[0]);
             pass.set_vertex_buffer(0, self.static_mesh.buffer.slice(..));
@@ -301,8 +476,13 @@ impl Renderer {
                 label: Some("pack yuyv"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.pack_pipeline);
-            pass.set_bind_group(0, &target.pack_group, &[]);
+            if effects.is_some() {
+                pass.set_pipeline(&self.effects_pipeline);
+                pass.set_bind_group(0, &target.effects_group, &[]);
+            } else {
+                pass.set_pipeline(&self.pack_pipeline);
+                pass.set_bind_group(0, &target.pack_group, &[]);
+            }
             pass.dispatch_workgroups((target.width / 2).div_ceil(8), target.height.div_ceil(8), 1);
         }
         encoder.copy_buffer_to_buffer(&target.packed, 0, &target.readback, 0, target.packed.size());
@@ -347,22 +527,24 @@ fn uniform_layout(device: &wgpu::Device, label: &str, dynamic: bool) -> wgpu::Bi
     })
 }
 
-fn scene_pipeline(
+fn render_pipeline(
     device: &wgpu::Device,
-    camera_layout: &wgpu::BindGroupLayout,
-    model_layout: &wgpu::BindGroupLayout,
+    label: &str,
+    source: &str,
+    layouts: &[&wgpu::BindGroupLayout],
 ) -> wgpu::RenderPipeline {
     let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("scene"),
-        source: wgpu::ShaderSource::Wgsl(include_str!("scene.wgsl").into()),
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
     });
+    let layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(|l| Some(*l)).collect();
     let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some("scene"),
-        bind_group_layouts: &[Some(camera_layout), Some(model_layout)],
+        label: Some(label),
+        bind_group_layouts: &layouts,
         ..Default::default()
     });
     device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("scene"),
+        label: Some(label),
         layout: Some(&layout),
         vertex: wgpu::VertexState {
             module: &shader,
@@ -400,24 +582,58 @@ fn scene_pipeline(
     })
 }
 
-fn pack_pipeline(device: &wgpu::Device, layout: &wgpu::BindGroupLayout) -> wgpu::ComputePipeline {
+fn compute_pipeline(
+    device: &wgpu::Device,
+    label: &str,
+    source: &str,
+    entry_point: &str,
+    layout: &wgpu::BindGroupLayout,
+) -> wgpu::ComputePipeline {
     let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("yuyv"),
-        source: wgpu::ShaderSource::Wgsl(include_str!("yuyv.wgsl").into()),
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
     });
     let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some("yuyv"),
+        label: Some(label),
         bind_group_layouts: &[Some(layout)],
         ..Default::default()
     });
     device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some("yuyv"),
+        label: Some(label),
         layout: Some(&pipeline_layout),
         module: &shader,
-        entry_point: Some("pack_main"),
+        entry_point: Some(entry_point),
         compilation_options: Default::default(),
         cache: None,
     })
+}
+
+/// The resolved image a compute pass reads (binding 0).
+fn image_entry() -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding: 0,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+/// The YUYV buffer a compute pass writes (binding 1).
+fn packed_entry() -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding: 1,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: false },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
 }
 
 fn upload(device: &wgpu::Device, label: &str, mesh: &Mesh) -> GpuMesh {
@@ -434,7 +650,7 @@ fn upload(device: &wgpu::Device, label: &str, mesh: &Mesh) -> GpuMesh {
 fn camera_target(
     device: &wgpu::Device,
     camera_layout: &wgpu::BindGroupLayout,
-    pack_layout: &wgpu::BindGroupLayout,
+    [pack_layout, effects_layout]: [&wgpu::BindGroupLayout; 2],
     width: u32,
     height: u32,
 ) -> CameraTarget {
@@ -516,9 +732,35 @@ fn camera_target(
             },
         ],
     });
+    let effects = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("camera effects"),
+        size: size_of::<CameraEffects>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let effects_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("camera effects"),
+        layout: effects_layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::TextureView(&resolved),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: packed.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: effects.as_entire_binding(),
+            },
+        ],
+    });
     CameraTarget {
         width,
         height,
+        effects,
+        effects_group,
         uniform,
         camera_group,
         multisampled,

@@ -1,9 +1,11 @@
 //! The static scene and the ball as triangle meshes in the field frame: carpet, lines, goals
-//! and an arena whose four walls differ, so a robot can tell which way it faces.
+//! and an arena whose four walls differ, so a robot can tell which way it faces; under a
+//! venue condition, that episode's walls, features, people, objects and robots.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 
+use crate::conditions::venue::{FigureKind, ROBOT_HEIGHT_M, StandingFigure, VenueLayout};
 use crate::field::FieldGeometry;
 
 #[repr(C)]
@@ -108,6 +110,42 @@ impl Mesh {
         }
     }
 
+    /// A box of `half` extents around `centre`, turned by `heading` about the vertical.
+    fn turned_box(&mut self, centre: Vec3, half: Vec3, heading: f32, colour: [f32; 3]) {
+        let (sin, cos) = heading.sin_cos();
+        let corner = |x: f32, y: f32, z: f32| {
+            let (lx, ly) = (x * half.x, y * half.y);
+            centre + Vec3::new(lx * cos - ly * sin, lx * sin + ly * cos, z * half.z)
+        };
+        let faces = [
+            [(1., -1., -1.), (1., 1., -1.), (1., 1., 1.), (1., -1., 1.)],
+            [
+                (-1., 1., -1.),
+                (-1., -1., -1.),
+                (-1., -1., 1.),
+                (-1., 1., 1.),
+            ],
+            [(1., 1., -1.), (-1., 1., -1.), (-1., 1., 1.), (1., 1., 1.)],
+            [
+                (-1., -1., -1.),
+                (1., -1., -1.),
+                (1., -1., 1.),
+                (-1., -1., 1.),
+            ],
+            [(-1., -1., 1.), (1., -1., 1.), (1., 1., 1.), (-1., 1., 1.)],
+            [
+                (-1., 1., -1.),
+                (1., 1., -1.),
+                (1., -1., -1.),
+                (-1., -1., -1.),
+            ],
+        ];
+        for face in faces {
+            let [a, b, c, d] = face.map(|(x, y, z)| corner(x, y, z));
+            self.quad(a, b, c, d, colour);
+        }
+    }
+
     fn ring(&mut self, centre: Vec2, radius: f32, width: f32, segments: usize) {
         for i in 0..segments {
             let angle = |k: usize| k as f32 / segments as f32 * core::f32::consts::TAU;
@@ -127,8 +165,14 @@ impl Mesh {
     }
 }
 
-/// Everything that never moves.
+/// Everything that never moves, in the paper's arena.
 pub fn static_scene(field: &FieldGeometry, goal_depth: f32) -> Mesh {
+    static_scene_in(field, goal_depth, &VenueLayout::standard())
+}
+
+/// Everything that never moves, in the venue of `layout` (the paper's arena, vertex for
+/// vertex, when it is the standard one).
+pub fn static_scene_in(field: &FieldGeometry, goal_depth: f32, layout: &VenueLayout) -> Mesh {
     let mut mesh = Mesh::default();
     let (hl, hw) = (field.length / 2.0, field.width / 2.0);
     let (cl, cw) = (hl + field.border, hw + field.border);
@@ -175,7 +219,10 @@ pub fn static_scene(field: &FieldGeometry, goal_depth: f32) -> Mesh {
         mesh.ground_line(Vec2::new(mark, -0.05), Vec2::new(mark, 0.05), lw);
         add_goal(&mut mesh, field, side, goal_depth);
     }
-    add_arena(&mut mesh, cl, cw);
+    add_arena(&mut mesh, cl, cw, layout);
+    for figure in &layout.figures {
+        add_figure(&mut mesh, figure);
+    }
     mesh
 }
 
@@ -219,10 +266,11 @@ fn add_goal(mesh: &mut Mesh, field: &FieldGeometry, side: f32, depth: f32) {
     );
 }
 
-/// Boards around the carpet, and four different walls further out: the +x wall blue with
-/// white stripes, the -x wall orange with dark blocks, the +y wall pale yellow with windows,
-/// the -y wall violet with pillars.
-fn add_arena(mesh: &mut Mesh, cl: f32, cw: f32) {
+/// Boards around the carpet, and four different walls further out: in the paper's arena the
+/// +x wall blue with white stripes, the -x wall orange with dark blocks, the +y wall pale
+/// yellow with windows, the -y wall violet with pillars; in another venue its own walls and
+/// features.
+fn add_arena(mesh: &mut Mesh, cl: f32, cw: f32, layout: &VenueLayout) {
     let board = 0.05;
     let height = 0.3;
     for side in [-1.0f32, 1.0] {
@@ -239,11 +287,8 @@ fn add_arena(mesh: &mut Mesh, cl: f32, cw: f32) {
             BOARD,
         );
     }
-    let (wx, wy, wall_height) = (8.0f32, 6.0f32, 2.2f32);
-    let blue = [0.15, 0.3, 0.7];
-    let orange = [0.85, 0.45, 0.12];
-    let yellow = [0.85, 0.8, 0.55];
-    let violet = [0.45, 0.3, 0.6];
+    let (wx, wy, wall_height) = (layout.wall_x, layout.wall_y, layout.wall_height);
+    let [blue, orange, yellow, violet] = layout.walls;
     // Walls face the field; a wall is a thin box.
     mesh.cuboid(
         Vec3::new(wx, -wy, 0.0),
@@ -265,6 +310,12 @@ fn add_arena(mesh: &mut Mesh, cl: f32, cw: f32) {
         Vec3::new(wx, -wy, wall_height),
         violet,
     );
+    for &(min, max, colour) in &layout.features {
+        mesh.cuboid(min, max, colour);
+    }
+    if !layout.paper_features {
+        return;
+    }
     // Features in front of the walls.
     let mut i = 0;
     let mut y = -wy + 0.5;
@@ -300,6 +351,100 @@ fn add_arena(mesh: &mut Mesh, cl: f32, cw: f32) {
             [0.25, 0.18, 0.35],
         );
         x += 2.4;
+    }
+}
+
+/// A person, a robot or an object standing on the floor.
+fn add_figure(mesh: &mut Mesh, figure: &StandingFigure) {
+    let (sin, cos) = figure.heading.sin_cos();
+    let at = |forward: f32, left: f32, z: f32| {
+        figure.position.extend(z)
+            + Vec3::new(forward * cos - left * sin, forward * sin + left * cos, 0.0)
+    };
+    let heading = figure.heading;
+    match figure.kind {
+        FigureKind::Person { height_m: h } => {
+            let skin = [0.78, 0.6, 0.48];
+            for side in [-1.0, 1.0] {
+                let leg = at(0.0, side * 0.09, 0.235 * h);
+                mesh.turned_box(
+                    leg,
+                    Vec3::new(0.08, 0.07, 0.235 * h),
+                    heading,
+                    figure.second_colour,
+                );
+                let arm = at(0.0, side * 0.25, 0.64 * h);
+                mesh.turned_box(arm, Vec3::new(0.05, 0.05, 0.17 * h), heading, figure.colour);
+            }
+            mesh.turned_box(
+                at(0.0, 0.0, 0.645 * h),
+                Vec3::new(0.11, 0.2, 0.175 * h),
+                heading,
+                figure.colour,
+            );
+            mesh.turned_box(
+                at(0.0, 0.0, 0.91 * h),
+                Vec3::new(0.1, 0.085, 0.09 * h),
+                heading,
+                skin,
+            );
+        }
+        FigureKind::Robot => {
+            let white = [0.9, 0.9, 0.9];
+            let h = ROBOT_HEIGHT_M;
+            for side in [-1.0, 1.0] {
+                mesh.turned_box(
+                    at(0.02, side * 0.05, 0.02),
+                    Vec3::new(0.08, 0.045, 0.02),
+                    heading,
+                    white,
+                );
+                mesh.turned_box(
+                    at(0.0, side * 0.05, 0.17),
+                    Vec3::new(0.045, 0.04, 0.13),
+                    heading,
+                    figure.second_colour,
+                );
+                mesh.turned_box(
+                    at(0.0, side * 0.12, 0.36),
+                    Vec3::new(0.035, 0.03, 0.09),
+                    heading,
+                    white,
+                );
+            }
+            mesh.turned_box(
+                at(0.0, 0.0, 0.375),
+                Vec3::new(0.06, 0.08, 0.075),
+                heading,
+                white,
+            );
+            mesh.turned_box(
+                at(0.045, 0.0, 0.37),
+                Vec3::new(0.02, 0.07, 0.06),
+                heading,
+                figure.colour,
+            );
+            mesh.turned_box(
+                at(0.0, 0.0, h - 0.065),
+                Vec3::new(0.06, 0.065, 0.065),
+                heading,
+                white,
+            );
+            mesh.turned_box(
+                at(0.055, 0.0, h - 0.06),
+                Vec3::new(0.01, 0.045, 0.02),
+                heading,
+                figure.second_colour,
+            );
+        }
+        FigureKind::Object { size } => {
+            mesh.turned_box(
+                at(0.0, 0.0, size.z / 2.0),
+                size / 2.0,
+                heading,
+                figure.colour,
+            );
+        }
     }
 }
 

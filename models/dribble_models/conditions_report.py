@@ -1,0 +1,227 @@
+"""How policies hold up under the conditions a real field brings: the table and the picture,
+generated from the summaries `scripts/conditions` leaves in models/conditions/, never typed.
+
+    python -m dribble_models.conditions_report            # models/conditions/README.md
+    python -m dribble_models.conditions_report --frames   # and models/conditions/frames.png
+
+Per policy and seed set (models/conditions/<policy>/<seed set>/<condition>-<severity>.json):
+goals with their Wilson 95 % interval, the ratio to the same policy's clean goals on the same
+seeds, and the failure classes of the episodes without a goal. The clean reference is a
+`clean.json` beside them where a run left one, else the policy's own clean closed loop on
+those seeds (models/policy/<policy>/fresh.json for fresh seeds, select.json for the
+selection seeds, eval.json for the test seeds), measured by the same engine.
+
+The picture shows what the top camera's thumbnail (what the network sees) looks like under
+each condition at severities 1, 3 and 5, rendered by `dribble render` on a selection seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+from .teachers import wilson
+
+#: The conditions in the order the simulator lists them (sim-harness/src/conditions).
+CONDITIONS = [
+    "exposure",
+    "contrast",
+    "noise",
+    "white-balance",
+    "motion-blur",
+    "lens",
+    "light",
+    "venue",
+    "unseen-venue",
+    "robots",
+]
+#: Where a seed set's clean closed loop lives in a policy's directory, and its seeds.
+CLEAN_SOURCES = {
+    "fresh": ("fresh.json", range(30_000, 30_100)),
+    "fresh20": ("fresh.json", range(30_000, 30_020)),
+    "selection": ("select.json", range(20_000, 20_050)),
+    "test": ("eval.json", range(10_000, 10_020)),
+}
+#: The frame in the picture: a selection seed, a second and a half into a walk and turn.
+PICTURE_SEED = 20_003
+SEVERITIES_PICTURED = (1, 3, 5)
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class ReportError(Exception):
+    """Summaries that cannot be compared."""
+
+
+def goals_of(summary: dict) -> tuple[int, int]:
+    episodes = summary["episodes"]
+    return sum(e["outcome"] == "goal" for e in episodes), len(episodes)
+
+
+def clean_reference(policy_dir: Path, seed_set: str, runs: Path) -> dict | None:
+    """The policy's clean summary on the seed set's seeds (see the module's documentation)."""
+    own = runs / "clean.json"
+    if own.is_file():
+        return json.loads(own.read_text())
+    source = CLEAN_SOURCES.get(seed_set)
+    if source is None or not (policy_dir / source[0]).is_file():
+        return None
+    summary = json.loads((policy_dir / source[0]).read_text())
+    seeds = source[1]
+    episodes = [e for e in summary["episodes"] if e["seed"] in seeds]
+    if len(episodes) != len(seeds):
+        return None
+    return {"engine": summary.get("engine"), "episodes": episodes}
+
+
+def condition_rows(runs: Path, clean: dict | None) -> list[dict]:
+    rows = []
+    for path in sorted(runs.glob("*.json"), key=order):
+        if path.name == "clean.json":
+            continue
+        summary = json.loads(path.read_text())
+        goals, episodes = goals_of(summary)
+        if clean is not None and clean.get("engine") != summary.get("engine"):
+            raise ReportError(f"{path} ran on {summary.get('engine')}, its clean reference on {clean.get('engine')}")
+        if clean is not None:
+            clean_seeds = sorted(e["seed"] for e in clean["episodes"])
+            if clean_seeds != sorted(e["seed"] for e in summary["episodes"]):
+                raise ReportError(f"{path} and its clean reference played other seeds")
+        failures = Counter(e["failure_class"] for e in summary["episodes"] if e["outcome"] != "goal" and e.get("failure_class"))
+        condition, _, severity = path.stem.rpartition("-")
+        rows.append(
+            {
+                "condition": condition if severity.isdigit() else path.stem,
+                "severity": int(severity) if severity.isdigit() else None,
+                "goals": goals,
+                "episodes": episodes,
+                "failures": failures,
+                "engine": summary.get("engine"),
+            }
+        )
+    return rows
+
+
+def order(path: Path) -> tuple[int, int]:
+    condition, _, severity = path.stem.rpartition("-")
+    index = CONDITIONS.index(condition) if condition in CONDITIONS else len(CONDITIONS)
+    return index, int(severity) if severity.isdigit() else 0
+
+
+def interval(goals: int, episodes: int) -> str:
+    low, high = wilson(goals, episodes)
+    return f"{goals} / {episodes} ({low:.2f}-{high:.2f})"
+
+
+def failure_text(failures: Counter) -> str:
+    if not failures:
+        return "-"
+    return ", ".join(f"{name.replace('_', ' ')} {count}" for name, count in failures.most_common())
+
+
+def table(policy: str, seed_set: str, clean: dict | None, rows: list[dict]) -> str:
+    lines = [
+        f"### {policy} on the {seed_set} seeds",
+        "",
+        "| condition | severity | goals (95 % interval) | ratio to clean | failures |",
+        "|---|---|---|---|---|",
+    ]
+    clean_rate = None
+    if clean is not None:
+        goals, episodes = goals_of(clean)
+        clean_rate = goals / episodes if episodes else None
+        failures = Counter(e["failure_class"] for e in clean["episodes"] if e["outcome"] != "goal" and e.get("failure_class"))
+        lines.append(f"| clean | - | {interval(goals, episodes)} | 1.00 | {failure_text(failures)} |")
+    for row in rows:
+        ratio = "-" if not clean_rate else f"{row['goals'] / row['episodes'] / clean_rate:.2f}"
+        severity = "-" if row["severity"] is None else str(row["severity"])
+        lines.append(f"| {row['condition']} | {severity} | {interval(row['goals'], row['episodes'])} | {ratio} | {failure_text(row['failures'])} |")
+    engines = sorted({str(row["engine"]) for row in rows})
+    lines += ["", f"Engine: {', '.join(engines)}."]
+    return "\n".join(lines)
+
+
+def report(root: Path, policies: Path) -> str:
+    parts = [
+        "# Policies under conditions",
+        "",
+        "Generated by `python -m dribble_models.conditions_report` from the summaries `scripts/conditions` "
+        "leaves here; do not edit. Each condition (sim-harness/src/conditions) is applied at the cameras' "
+        "own resolution before YUYV packing, its random draws taken from the episode's seed. Goals with "
+        "their Wilson 95 % interval; the ratio is to the same policy's clean goals on the same seeds with "
+        "the same engine. Fresh and test seeds are for reporting only; choices are made on the selection seeds.",
+        "",
+        "![The top camera's thumbnail under each condition](frames.png)",
+    ]
+    for policy_dir in sorted(p for p in root.iterdir() if p.is_dir()):
+        for runs in sorted(p for p in policy_dir.iterdir() if p.is_dir()):
+            clean = clean_reference(policies / policy_dir.name, runs.name, runs)
+            rows = condition_rows(runs, clean)
+            if rows:
+                parts += ["", table(policy_dir.name, runs.name, clean, rows)]
+    return "\n".join(parts) + "\n"
+
+
+def render_frames(dribble: Path, out: Path) -> None:
+    """A grid of the top thumbnail under each condition at severities 1, 3 and 5 (and clean)."""
+    from PIL import Image, ImageDraw
+
+    scale, width, height, label = 2, 160, 120, 130
+    columns = len(SEVERITIES_PICTURED)
+    sheet = Image.new("RGB", (label + columns * width * scale, (len(CONDITIONS) + 1) * height * scale + 24), "white")
+    draw = ImageDraw.Draw(sheet)
+    for c, severity in enumerate(SEVERITIES_PICTURED):
+        draw.text((label + c * width * scale + 8, 6), f"severity {severity}", fill="black")
+    with tempfile.TemporaryDirectory() as scratch:
+        for r, condition in enumerate(["clean", *CONDITIONS]):
+            draw.text((6, 24 + r * height * scale + height * scale // 2), condition, fill="black")
+            for c, severity in enumerate(SEVERITIES_PICTURED):
+                if condition == "clean" and c > 0:
+                    continue
+                text = "clean" if condition == "clean" else f"{condition}:{severity}"
+                target = Path(scratch) / text.replace(":", "-")
+                subprocess.run(
+                    [str(dribble), "render", "--seed", str(PICTURE_SEED), "--seconds", "1.5", "--forward", "0.6", "--turn", "0.8", "--condition", text, "--out", str(target)],
+                    check=True,
+                    capture_output=True,
+                )
+                thumbnail = Image.open(target / "top_thumbnail.png").convert("RGB").resize((width * scale, height * scale))
+                sheet.paste(thumbnail, (label + c * width * scale, 24 + r * height * scale))
+    sheet.save(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m dribble_models.conditions_report", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--root", type=Path, default=ROOT / "models" / "conditions", help="where scripts/conditions keeps the summaries")
+    parser.add_argument("--policies", type=Path, default=ROOT / "models" / "policy", help="the policies' directories (their clean runs)")
+    parser.add_argument("--frames", action="store_true", help="also render the picture (needs the dribble binary)")
+    parser.add_argument("--dribble", type=Path, default=Path.home() / ".cache" / "dribble" / "target" / "release" / "dribble", help="the dribble binary for --frames")
+    parser.add_argument("--check", action="store_true", help="fail if README.md differs from what the summaries give")
+    args = parser.parse_args(argv)
+    try:
+        text = report(args.root, args.policies)
+    except (ReportError, OSError, ValueError, KeyError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    readme = args.root / "README.md"
+    if args.check:
+        if not readme.is_file() or readme.read_text() != text:
+            print(f"error: {readme} is not what the summaries give: run python -m dribble_models.conditions_report", file=sys.stderr)
+            return 1
+        return 0
+    args.root.mkdir(parents=True, exist_ok=True)
+    readme.write_text(text)
+    print(f"wrote {readme}")
+    if args.frames:
+        render_frames(args.dribble, args.root / "frames.png")
+        print(f"wrote {args.root / 'frames.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,53 @@
+"""The conditions table: goals, intervals, the ratio to clean and failure classes come from the
+summaries, the clean reference is the same policy's on the same seeds and engine, and the
+committed table is what the committed summaries give."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from dribble_models import conditions_report
+
+ENGINE = "compiled (avx2+fma, winograd)"
+
+
+def _summary(path: Path, seeds: range, goals: int, engine: str = ENGINE, failure: str = "walked_off") -> None:
+    """`goals` of the episodes are goals, the misses spread evenly among them."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    missed = {round(k * len(seeds) / (len(seeds) - goals)) for k in range(len(seeds) - goals)} if goals < len(seeds) else set()
+    episodes = [
+        {"seed": s, "outcome": "time limit" if i in missed else "goal", "failure_class": failure if i in missed else None}
+        for i, s in enumerate(seeds)
+    ]
+    path.write_text(json.dumps({"engine": engine, "episodes": episodes}))
+
+
+def test_the_table_compares_each_condition_with_clean_on_the_same_seeds(tmp_path):
+    root, policies = tmp_path / "conditions", tmp_path / "policy"
+    _summary(policies / "best" / "fresh.json", range(30_000, 30_100), 90)
+    runs = root / "best" / "fresh20"
+    _summary(runs / "noise-3.json", range(30_000, 30_020), 9, failure="lost_the_ball")
+    _summary(runs / "exposure-3.json", range(30_000, 30_020), 0)
+    text = conditions_report.report(root, policies)
+    # Clean is the first 20 fresh seeds of the policy's own run: 18 of them are goals.
+    assert "| clean | - | 18 / 20 (0.70-0.97) | 1.00 | walked off 2 |" in text
+    assert "| noise | 3 | 9 / 20 (0.26-0.66) | 0.50 | lost the ball 11 |" in text
+    # Rows follow the simulator's order of conditions, not the files' names.
+    assert text.index("| exposure |") < text.index("| noise |")
+
+
+def test_runs_on_other_engines_or_seeds_than_clean_are_refused(tmp_path):
+    root, policies = tmp_path / "conditions", tmp_path / "policy"
+    _summary(policies / "best" / "fresh.json", range(30_000, 30_100), 90)
+    runs = root / "best" / "fresh20"
+    _summary(runs / "noise-3.json", range(30_000, 30_020), 9, engine="tract")
+    with pytest.raises(conditions_report.ReportError, match="ran on tract"):
+        conditions_report.report(root, policies)
+    _summary(runs / "noise-3.json", range(30_001, 30_021), 9)
+    with pytest.raises(conditions_report.ReportError, match="other seeds"):
+        conditions_report.report(root, policies)
+
+
+def test_the_committed_table_is_what_the_committed_summaries_give():
+    assert conditions_report.main(["--check"]) == 0
