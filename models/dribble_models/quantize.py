@@ -53,6 +53,7 @@ from onnxruntime.quantization import (
 from . import contract, dataset
 from .gating import nearest_cluster
 from .manifest import load as load_manifest
+from .seed_ranges import ReservedSeedError, refuse_reserved
 
 # What the manifest says about the method, for a reader of the file.
 METHOD = "onnxruntime quantize_static, QDQ; weights int8 per output channel, 7 bits (reduce_range); activations uint8 per tensor, MinMax"
@@ -85,7 +86,12 @@ TRAINING_SEEDS = range(0, 100)
 def check_calibration_dataset(train: dataset.Dataset, training: dict, directory: Path, policy: Path) -> None:
     """Calibration sees training episodes only: the policy's own training dataset (by content
     hash), or episodes re-recorded from its training seeds by the same teacher (recording is
-    deterministic per seed), none of them a validation seed. Anything else is refused."""
+    deterministic per seed), none of them a validation seed. Anything else is refused, and
+    first of all any episode of the seeds kept for choosing and reporting (`seed_ranges`)."""
+    try:
+        refuse_reserved(train.seeds(), str(directory), use="calibration")
+    except ReservedSeedError as error:
+        raise QuantizeError(str(error)) from error
     if training.get("dataset_hash") == train.content_hash:
         return
     teacher = training.get("teacher", "paper")

@@ -301,7 +301,8 @@ def choose(rows: list[dict]) -> dict:
     return next(row for row in rows if Path(row["directory"]).name == chosen.name)
 
 
-# The most an int8 policy's test error may exceed its float model's (issue 29).
+# The most an int8 policy's validation error may exceed its float model's (issue 29; on the
+# validation episodes since issue 48, the test ones being for reporting only).
 INT8_ERROR_MARGIN = 0.01
 
 #: The V5's computing-tick budget in instructions: 1.5 ms (issue 29's target, the slow end of
@@ -335,12 +336,30 @@ def recorded_tick(directory: Path, build: str) -> int | None:
     return int(record["instructions"])
 
 
+def scored_validation_error(directory: Path, own_score_needed: bool = False) -> float | None:
+    """A policy's error on its validation episodes (training seeds held out from fitting) as the
+    robot's code scores it: `dribble score` on a dataset of exactly the manifest's
+    `validation_seeds`, in score_validation.json. Without that score, a float model's manifest
+    value (the trainer's); an int8 manifest carries its float model's training table, so for it
+    (`own_score_needed`) only the score is the network's own. Never the test episodes."""
+    training = load(directory / "policy.toml")["training"]
+    score = read(directory / "score_validation.json")
+    if score is not None:
+        scored = sorted(int(e["seed"]) for e in score.get("episodes", []))
+        expected = sorted(int(s) for s in training.get("validation_seeds", []))
+        if not expected or scored != expected:
+            return None
+        return score["error"]
+    return None if own_score_needed else training.get("validation_error")
+
+
 def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
-    """Whether the int8 policy `twin` keeps the quality (issue 29's gate) and what was measured:
-    quantized from exactly the networks of its float model (`<name>` without `-int8`, beside
-    it), its test error at most 0.01 above that model's, and its goals on the shipped model's
-    selection seeds (its run in models/selection/<twin>.json) not below the lower end of the
-    shipped model's Wilson 95 % interval there."""
+    """Whether the int8 policy `twin` keeps the quality (issue 29's gate, on choosing data only,
+    issue 48) and what was measured: quantized from exactly the networks of its float model
+    (`<name>` without `-int8`, beside it), its error on the validation episodes at most 0.01
+    above that model's, and its goals on the shipped model's selection seeds (its run in
+    models/selection/<twin>.json) not below the lower end of the shipped model's Wilson 95 %
+    interval there. The test and fresh seeds take no part."""
     original = twin.parent / twin.name.removesuffix("-int8")
     if not (twin / "policy.toml").is_file() or not (original / "policy.toml").is_file():
         return False, f"no float model {original.name} beside it", 0
@@ -348,15 +367,15 @@ def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
     networks = [hashlib.sha256((original / n).read_bytes()).hexdigest() for n in float_manifest["networks"]]
     if manifest.get("precision") != "int8" or manifest.get("quantization", {}).get("float_networks_sha256") != networks:
         return False, f"not quantized from {original.name}'s networks", 0
-    errors = (scored_test_error(twin), scored_test_error(original))
+    errors = (scored_validation_error(twin, own_score_needed=True), scored_validation_error(original))
     if None in errors:
-        return False, "a test error is missing", 0
+        return False, "a validation score on the manifest's validation seeds is missing (score_validation.json)", 0
     run = read_selection(twin.parent.parent / "selection" / f"{twin.name}.json")
     if run is None or shipped_run is None or run.seeds != shipped_run.seeds:
         return False, "no selection run on the shipped model's seeds", 0
     low, _ = wilson(shipped_run.goals, shipped_run.episodes)
     measured = (
-        f"test error {errors[0]:.4f} against {original.name}'s {errors[1]:.4f}; {run.goals} / {run.episodes} "
+        f"validation error {errors[0]:.4f} against {original.name}'s {errors[1]:.4f}; {run.goals} / {run.episodes} "
         f"selection goals against the shipped model's {shipped_run.goals} / {shipped_run.episodes} (interval from {low:.2f})"
     )
     kept = errors[0] <= errors[1] + INT8_ERROR_MARGIN and run.goals >= low * run.episodes
@@ -368,8 +387,8 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
 
     Candidates are the int8 policies beside the shipped model (`<float model>-int8`, made by
     dribble_models.quantize from exactly that float model's networks) that keep the quality
-    (`int8_quality`: test error, and goals on the shipped model's selection seeds against the
-    shipped model's interval). Of those whose recorded V5 tick (`v5_tick.json`) fits
+    (`int8_quality`: validation error, and goals on the shipped model's selection seeds against
+    the shipped model's interval). Of those whose recorded V5 tick (`v5_tick.json`) fits
     `V5_TICK_BUDGET`, the ones whose V6 tick (`v6_tick.json`) fits `V6_TICK_BUDGET` too come
     first (the package runs on both robots), then the most selection goals, then the fewest V5
     instructions; if none fits the V5, the shipped model's own twin where it keeps the quality;

@@ -63,6 +63,7 @@ from tqdm import tqdm
 
 from . import contract
 from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
+from .seed_ranges import refuse_reserved
 from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
@@ -846,6 +847,8 @@ def main(argv: list[str] | None = None) -> int:
         device = training_device(args.device)
         dataset = load(args.dataset)
         added = [load(directory) for directory in args.add_dataset]
+        for training_data in (dataset, *added):
+            refuse_reserved(training_data.seeds(), str(training_data.directory))
         mixed = sorted({d.teacher for d in (dataset, *added)})
         if len(mixed) > 1:
             raise DatasetError(f"the datasets were labelled by different teachers ({', '.join(mixed)}): a model learns from one")

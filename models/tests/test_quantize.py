@@ -90,7 +90,7 @@ def test_the_rcnn_keeps_its_lstm_in_floats(tmp_path, rng):
 
 def test_calibrating_on_another_dataset_is_refused(tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2], 5, rng)
-    other = write_dataset(tmp_path / "other", [10000], 5, rng)
+    other = write_dataset(tmp_path / "other", [500], 5, rng)
     policy = float_policy(tmp_path, CNN(), train)
     with pytest.raises(QuantizeError, match="is neither the dataset.*not training seeds"):
         quantize_policy(policy, other, tmp_path / "int8")
@@ -99,6 +99,15 @@ def test_calibrating_on_another_dataset_is_refused(tmp_path, rng):
     validation = write_dataset(tmp_path / "validation", [3], 5, rng)
     with pytest.raises(QuantizeError, match="not training seeds"):
         quantize_policy(policy, validation, tmp_path / "int8")
+
+
+@pytest.mark.parametrize("seed", [10_000, 20_049, 30_000])
+def test_calibration_refuses_the_seeds_kept_for_choosing_and_reporting(tmp_path, rng, seed):
+    train = write_dataset(tmp_path / "train", [1, 2], 5, rng)
+    policy = float_policy(tmp_path, CNN(), train)
+    reserved = write_dataset(tmp_path / "reserved", [2, seed], 5, rng)
+    with pytest.raises(QuantizeError, match="kept for choosing and reporting.*never calibration data"):
+        quantize_policy(policy, reserved, tmp_path / "int8")
 
 
 def test_episodes_re_recorded_from_training_seeds_by_the_same_teacher_may_calibrate(tmp_path, rng):

@@ -32,16 +32,30 @@ def test_a_block_is_replaced_whole_and_a_missing_one_is_named():
         results.with_tables(text, {"failures": "| x |"})
 
 
-def _policy(directory: Path, test_error: float, networks_sha256: list[str] | None = None) -> None:
+VALIDATION_SEEDS = [8, 9]
+
+
+def _policy(directory: Path, validation_error: float, networks_sha256: list[str] | None = None) -> None:
+    """A manifest with its validation error; an int8 one (`networks_sha256`) carries its float
+    model's table, so its own error is the robot's score on the validation seeds."""
     directory.mkdir(parents=True)
     (directory / "policy.onnx").write_bytes(directory.name.encode())
     lines = ['networks = ["policy.onnx"]']
     if networks_sha256 is not None:
         lines.append('precision = "int8"')
-    lines += ["[training]", f"test_error = {test_error}"]
+    lines += ["[training]", "validation_error = 0.5", "test_error = 0.0", f"validation_seeds = {VALIDATION_SEEDS}"]
     if networks_sha256 is not None:
         lines += ["[quantization]", f"float_networks_sha256 = {networks_sha256!r}".replace("'", '"')]
+    else:
+        lines[lines.index("validation_error = 0.5")] = f"validation_error = {validation_error}"
     (directory / "policy.toml").write_text("\n".join(lines) + "\n")
+    if networks_sha256 is not None:
+        _validation_score(directory, validation_error)
+
+
+def _validation_score(directory: Path, error: float, seeds: list[int] = VALIDATION_SEEDS) -> None:
+    episodes = [{"seed": s, "error": error, "rows": 10} for s in seeds]
+    (directory / "score_validation.json").write_text(json.dumps({"error": error, "episodes": episodes}))
 
 
 def _selection(path: Path, goals: int, episodes: int = 50, first: int = 20000) -> None:
@@ -70,8 +84,18 @@ def test_the_robot_carries_the_int8_twin_only_where_it_keeps_the_float_models_qu
     _selection(tmp_path / "selection" / "best-int8.json", 50, first=20050)
     assert results.robot_policy(shipped)[0] == "best"
     _selection(tmp_path / "selection" / "best-int8.json", 44)
-    # A test error more than 0.01 above the float model's fails; a twin of other networks too.
-    (twin / "policy.toml").write_text((twin / "policy.toml").read_text().replace("0.109", "0.111"))
+    # A validation error more than 0.01 above the float model's fails; a twin of other networks too.
+    _validation_score(twin, 0.111)
+    assert results.robot_policy(shipped)[0] == "best"
+    # A test score takes no part (the test seeds are for reporting only), nor a score on other
+    # seeds than the validation ones, and without its own score an int8 policy is no candidate.
+    _validation_score(twin, 0.109)
+    (twin / "score_test.json").write_text(json.dumps({"error": 0.5}))
+    assert results.robot_policy(shipped)[0] == "best-int8"
+    _validation_score(twin, 0.100, seeds=[10000, 10001])
+    name, why = results.robot_policy(shipped)
+    assert name == "best" and "validation score" in why
+    (twin / "score_validation.json").unlink()
     assert results.robot_policy(shipped)[0] == "best"
     shutil.rmtree(twin)
     _policy(twin, 0.100, [hashlib.sha256(b"other").hexdigest()])
@@ -97,14 +121,14 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
     # The narrow twin keeps the quality (0.125 <= 0.120 + 0.01; 42 of 50 above 38.1) and fits.
     name, why = results.robot_policy(shipped)
     assert name == "narrow-int8" and "V5: 1,647,536 instructions of 1,680,000; V6: not counted" in why
-    # Its test error is compared with its own float model's, not the shipped one's.
+    # Its validation error is compared with its own float model's, not the shipped one's.
     (narrow / "policy.toml").write_text((narrow / "policy.toml").read_text().replace("0.12", "0.114"))
     assert results.robot_policy(shipped)[0] == "best-int8"
     (narrow / "policy.toml").write_text((narrow / "policy.toml").read_text().replace("0.114", "0.12"))
-    # The robot's own score of the int8 network, where there is one, over its manifest's copy.
-    (models / "narrow-int8" / "score_test.json").write_text(json.dumps({"error": 0.131}))
+    # The robot's own score of the float network, where there is one, over its manifest's value.
+    _validation_score(narrow, 0.114)
     assert results.robot_policy(shipped)[0] == "best-int8"
-    (models / "narrow-int8" / "score_test.json").write_text(json.dumps({"error": 0.118}))
+    _validation_score(narrow, 0.12)
     assert results.robot_policy(shipped)[0] == "narrow-int8"
     # Over the budget (or not counted) it is no candidate: the shipped model's twin, which keeps
     # the quality though its tick does not fit, is the fallback.

@@ -177,6 +177,20 @@ def test_a_narrow_cnn_says_so_and_is_never_mixed_with_the_papers_widths(tmp_path
         main(["--kind", "rcnn", "--dataset", str(train), "--out", str(tmp_path / "r"), "--filters", "8,16,4,8"])
 
 
+@pytest.mark.parametrize("seed,name", [(20_000, "selection"), (10_005, "test"), (30_099, "fresh")])
+def test_the_seeds_kept_for_choosing_and_reporting_are_never_trained_on(tmp_path, rng, capsys, seed, name):
+    clean = write_dataset(tmp_path / "train", [1, 2, 3], 6, rng)
+    reserved = write_dataset(tmp_path / "reserved", [4, seed], 6, rng)
+    base = ["--kind", "cnn", "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    base += ["--checkpoint-dir", str(tmp_path / "checkpoints")]
+    # As the training dataset, and as an added one (a DAgger round).
+    assert main(base + ["--dataset", str(reserved), "--out", str(tmp_path / "a")]) == 2
+    assert f"{name} seeds [{seed}]" in capsys.readouterr().err
+    assert main(base + ["--dataset", str(clean), "--add-dataset", str(reserved), "--out", str(tmp_path / "b")]) == 2
+    assert "never training data" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
 def test_data_the_model_was_not_trained_on_is_refused_where_it_must_be(tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
     other = write_dataset(tmp_path / "other", [1, 2], 12, rng)
