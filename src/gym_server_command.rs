@@ -62,6 +62,10 @@ pub struct GymServerArgs {
     /// truncates there.
     #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
     time_limit: f32,
+    /// What the cameras see every episode under: `clean`, NAME:SEVERITY[,...] or `randomized`
+    /// (see `dribble eval --help`); drawn from each reset's seed.
+    #[arg(long, visible_alias = "conditions", default_value = "clean")]
+    condition: dribble_sim::conditions::Conditions,
 }
 
 /// What one request asks for.
@@ -351,7 +355,7 @@ fn serve<R: Read, W: Write>(
             }
             Err(error) => return Err(error.into()),
         };
-        let setup = EpisodeSetup::from_seed(seed);
+        let setup = EpisodeSetup::from_seed(seed).under(args.condition);
         {
             let mut exchange = shared.borrow_mut();
             exchange.setup = setup;

@@ -201,7 +201,7 @@ mod tests {
         assert_eq!(result.ball_path, vec![Vec2::new(2.0, -1.0)]);
         assert_eq!(
             title("expert", &results),
-            "the scripted expert: 1 of 1 goals, seeds 10003..10003"
+            "the scripted expert: 1 of 1 goals (0.21-1.00), seeds 10003..10003"
         );
     }
 

@@ -64,22 +64,45 @@ fn label(result: &EpisodeResult) -> String {
 
 /// The figure's title: who drove (`driver` as `dribble eval --driver` takes it: `expert`
 /// or a policy's `policy.toml`), the goals and the seeds.
+/// The plot's title: the driver (a policy by its directory's name: a whole path would push
+/// the figures off the picture's edge), the goals with their Wilson interval, the seeds, and
+/// the conditions when they are not clean.
 pub fn title(driver: &str, results: &[EpisodeResult]) -> String {
     let driver = match driver {
         "expert" => "the scripted expert".to_owned(),
-        policy => format!("policy {policy}"),
+        policy => {
+            let path = std::path::Path::new(policy);
+            let directory = if path.extension().is_some_and(|e| e == "toml") {
+                path.parent()
+            } else {
+                Some(path)
+            };
+            let name = directory
+                .and_then(|d| d.file_name())
+                .map_or_else(|| policy.to_owned(), |n| n.to_string_lossy().into_owned());
+            format!("policy {name}")
+        }
     };
     let goals = results
         .iter()
         .filter(|r| r.outcome == Outcome::Goal)
         .count();
+    let (low, high) = crate::goal_rate::wilson_interval(goals, results.len());
     let seeds = match (results.first(), results.last()) {
         (Some(first), Some(last)) => {
             format!(", seeds {}..{}", first.setup.seed, last.setup.seed)
         }
         _ => String::new(),
     };
-    format!("{driver}: {goals} of {} goals{seeds}", results.len())
+    let conditions = results
+        .first()
+        .map(|r| r.setup.conditions)
+        .filter(|c| !c.is_clean())
+        .map_or_else(String::new, |c| format!(", {c}"));
+    format!(
+        "{driver}: {goals} of {} goals ({low:.2}-{high:.2}){seeds}{conditions}",
+        results.len()
+    )
 }
 
 /// Points around a circle, closed.

@@ -29,7 +29,7 @@ Harada and Russell 1999, which leaves the best policy unchanged).
 ``info`` holds the ground truth the policy does not see: ``time_s``, ``robot`` (x, y,
 heading), ``ball``, ``target_side``, ``goal_centre``, ``seed``, and the teacher's command
 and phase for that state (``expert_command``, ``expert_phase``; the teacher is
-``expert="paper"``, ``"observable"`` or ``"orbit"``, asked exactly where DAgger's labels are). The last
+``expert="paper"``, ``"observable"``, ``"orbit"`` or ``"detector"``, asked exactly where DAgger's labels are). The last
 step's ``info`` adds the ``outcome``, ``duration_s``, ``walked_m``, ``computed_commands``,
 ``first_sighting_s`` and the 10 Hz ``trajectory`` that ``dribble eval --trajectories``
 writes.
@@ -88,9 +88,10 @@ class NaoDribbleEnv(gym.Env):
         time_limit_s: float = 90.0,
         shaping: float = 0.0,
         binary: str | None = None,
+        condition: str = "clean",
     ):
-        if expert not in ("paper", "observable", "orbit"):
-            raise ValueError(f"expert is 'paper', 'observable' or 'orbit', not {expert!r}")
+        if expert not in ("paper", "observable", "orbit", "detector"):
+            raise ValueError(f"expert is 'paper', 'observable', 'orbit' or 'detector', not {expert!r}")
         if not (time_limit_s > 0 and np.isfinite(time_limit_s)):
             raise ValueError(f"time_limit_s must be positive and finite, not {time_limit_s}")
         self.observation_space = spaces.Dict(
@@ -103,6 +104,9 @@ class NaoDribbleEnv(gym.Env):
         self.expert = expert
         self.time_limit_s = float(time_limit_s)
         self.shaping = float(shaping)
+        # What the cameras see the episodes under (`dribble eval --help`: clean, NAME:SEVERITY[,...]
+        # or randomized); the server refuses a text it cannot read.
+        self.condition = str(condition)
         self._binary = binary
         self._server: subprocess.Popen | None = None
         self._log = None
@@ -121,6 +125,8 @@ class NaoDribbleEnv(gym.Env):
             self.expert,
             "--time-limit",
             repr(self.time_limit_s),
+            "--condition",
+            self.condition,
         ]
         # Its log goes to a file: a pipe nobody reads would fill and stall it.
         self._log = tempfile.TemporaryFile()

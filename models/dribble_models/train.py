@@ -166,6 +166,52 @@ class Augment:
         return out[0], out[1]
 
 
+@dataclass
+class CameraAugment:
+    """What the simulator's camera conditions (sim-harness/src/conditions) do to a thumbnail,
+    applied to a share of the training rows where rendering them would cost an episode:
+    exposure (a gain of the linear signal, clipped where the sensor saturates), contrast
+    around mid-grey, vignetting, a softer or moving lens (a 3x3 blur at the thumbnail's scale,
+    12 camera pixels) and sensor noise as it survives the 4x4 averaging. Top and bottom share
+    a row's exposure and contrast (one light, one processor); each has its own noise. The
+    other conditions (light and shadows, venues, robots) change the scene and are rendered."""
+
+    share: float = 0.5  # of the rows, augmented
+    exposure_ev: float = 1.2  # uniform in +-
+    contrast_low: float = 0.4  # contrast uniform in [low, 1]
+    vignetting: float = 0.5  # corner loss uniform in [0, v]
+    noise: float = 0.04  # standard deviation uniform in [0, n], network units
+    blur_share: float = 0.3
+
+    def __call__(self, top: torch.Tensor, bottom: torch.Tensor, generator: torch.Generator):
+        n = top.shape[0]
+
+        def draw(low: float, high: float) -> torch.Tensor:
+            return low + (high - low) * torch.rand(n, 1, 1, 1, generator=generator)
+
+        chosen = (torch.rand(n, 1, 1, 1, generator=generator) < self.share).float()
+        on = lambda: (torch.rand(n, 1, 1, 1, generator=generator) < 0.5).float() * chosen  # noqa: E731
+        ev = draw(-self.exposure_ev, self.exposure_ev) * on()
+        contrast = 1 + (draw(self.contrast_low, 1.0) - 1) * on()
+        vignetting = draw(0.0, self.vignetting) * on()
+        sigma = draw(0.0, self.noise) * on()
+        blur = (torch.rand(n, 1, 1, 1, generator=generator) < self.blur_share).float() * chosen
+        out = []
+        for images in (top, bottom):
+            h, w = images.shape[2:]
+            y = torch.linspace(-1, 1, h).view(1, 1, h, 1)
+            x = torch.linspace(-1, 1, w).view(1, 1, 1, w)
+            falloff = 1 - vignetting * (x * x + y * y) / 2
+            linear = images.clamp(0, 1) ** 2.2 * falloff * torch.pow(2.0, ev)
+            display = linear.clamp(0, 1) ** (1 / 2.2)
+            blurred = nn.functional.avg_pool2d(nn.functional.pad(display, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
+            display = blur * blurred + (1 - blur) * display
+            display = 0.5 + (display - 0.5) * contrast
+            display = display + torch.randn(display.shape, generator=generator) * sigma
+            out.append(display.clamp(0.0, 1.0))
+        return out[0], out[1]
+
+
 # ---------------------------------------------------------------------------------------
 # Prediction as the robot runs each kind
 
@@ -403,6 +449,7 @@ class Training:
             self.train_episodes = self.train_episodes + episodes
         torch.manual_seed(args.seed)
         self.augment = Augment() if args.augment else None
+        self.camera_augment = CameraAugment(share=args.camera_augment) if args.camera_augment > 0 else None
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
         if args.distill_from is not None:
             if self.kind != "cnn" or args.modes != 1:
@@ -487,6 +534,7 @@ class Training:
             "clusters": a.clusters,
             # Only where it differs from the paper's one output, so that older checkpoints resume.
             **({"modes": a.modes} if a.modes != 1 else {}),
+            **({"camera_augment": a.camera_augment} if a.camera_augment > 0 else {}),
             **({"filters": a.filters.text()} if a.filters != PAPER_FILTERS else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
             **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
@@ -535,6 +583,8 @@ class Training:
         top, bottom = to_input(self.rows.top[index]), to_input(self.rows.bottom[index])
         if self.augment:
             top, bottom = self.augment(top, bottom, generator)
+        if self.camera_augment:
+            top, bottom = self.camera_augment(top, bottom, generator)
         return top.to(self.device), bottom.to(self.device), torch.from_numpy(self.rows.command[index]).to(self.device)
 
     def epoch_rows(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray]]:
@@ -604,6 +654,8 @@ class Training:
                 t, b = to_input(episode.top[start:end]), to_input(episode.bottom[start:end])
                 if self.augment:
                     t, b = self.augment(t, b, generator)
+                if self.camera_augment:
+                    t, b = self.camera_augment(t, b, generator)
                 top[lane, : end - start], bottom[lane, : end - start] = t, b
             top, bottom = top.to(self.device), bottom.to(self.device)
             out, (h, c) = model(top, bottom, (h * fresh, c * fresh))
@@ -757,6 +809,8 @@ def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> st
     if args.kind == "hcnn":
         parts.append(f"K {args.clusters} (k-means on {args.kmeans_rows} sampled rows)")
     parts.append("augmented" if args.augment else "no augmentation")
+    if args.camera_augment > 0:
+        parts.append(f"camera conditions augmented on {args.camera_augment:.0%} of the rows (CameraAugment: exposure, contrast, vignetting, blur, noise)")
     if args.balance_phases:
         parts.append("phase-balanced sampling")
     if args.add_dataset:
@@ -808,6 +862,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--filters", type=Filters.parse, default=PAPER_FILTERS, help="CNN: the four convolutions' filter counts, top first, top second, bottom first, bottom second (beyond the paper; default its 16,32,8,16; fewer for the Nao V5's tick)")
     parser.add_argument("--modes", type=int, default=1, help="CNN: command hypotheses with a learned choice among them (beyond the paper; 1 is the paper's CNN)")
     parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
+    parser.add_argument("--camera-augment", type=float, default=0.0, metavar="SHARE", help="apply what the simulator's camera conditions do (exposure, contrast, vignetting, blur, noise) to this share of the training rows (0: none; CameraAugment)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")
     parser.add_argument(
@@ -833,7 +888,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--features-from starts an R-CNN's convolutions (--kind rcnn)")
     if args.freeze_features and args.features_from is None:
         parser.error("--freeze-features needs --features-from")
-    if args.freeze_features and args.augment:
+    if not 0.0 <= args.camera_augment <= 1.0:
+        parser.error("--camera-augment is a share of the rows, in [0, 1]")
+    if args.freeze_features and (args.augment or args.camera_augment > 0):
         parser.error("--freeze-features computes each episode's features once: no --augment")
     if args.prune_from is not None and args.init_from is not None:
         parser.error("--prune-from and --init-from are two starts: name one")

@@ -131,3 +131,24 @@ def test_the_readmes_ten_lines_run(tmp_path, capsys):
     exec(compile(short, "README.md", "exec"), namespace)
     namespace["env"].close()
     assert capsys.readouterr().out.strip() == "0 goals of 20"
+
+
+def test_the_environment_plays_under_a_condition_and_refuses_one_it_cannot_read():
+    clean = gym_env.NaoDribbleEnv(time_limit_s=1.0)
+    noisy = gym_env.NaoDribbleEnv(time_limit_s=1.0, condition="noise:3")
+    try:
+        first, _ = clean.reset(seed=20_004)
+        seen, _ = noisy.reset(seed=20_004)
+        again, _ = noisy.reset(seed=20_004)
+        # The same seed under noise: other pixels than clean, the same ones again.
+        assert not np.array_equal(first["top"], seen["top"])
+        assert np.array_equal(seen["top"], again["top"])
+    finally:
+        clean.close()
+        noisy.close()
+    broken = gym_env.NaoDribbleEnv(time_limit_s=1.0, condition="fog:3")
+    try:
+        with pytest.raises(gym_env.ServerError, match="fog"):
+            broken.reset(seed=20_004)
+    finally:
+        broken.close()

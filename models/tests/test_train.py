@@ -17,6 +17,7 @@ from dribble_models.networks import RCNN, ModalCNN, RCNNStep
 from dribble_models.networks import CNN, PAPER_FILTERS, Filters
 from dribble_models.shipped_weights import load_pruned_weights, load_shipped_weights
 from dribble_models.train import (
+    CameraAugment,
     Rows,
     Training,
     gating_features,
@@ -341,3 +342,26 @@ def test_the_notes_say_who_drove_each_added_dataset(tmp_path, rng):
     args = parse_args(["--kind", "cnn", "--dataset", str(demonstrations), "--out", str(tmp_path / "x"),
                        "--add-dataset", str(demonstrations), "--add-dataset", str(round_)])
     assert "plus every episode of more-0 (expert-driven), round-1 (policy-driven) (expert-labelled)" in notes_of(args)
+
+
+def test_camera_augmentation_changes_a_share_of_the_rows_within_range_and_follows_the_seed():
+    generator = torch.Generator().manual_seed(3)
+    top, bottom = torch.rand(64, 1, 120, 160, generator=generator), torch.rand(64, 1, 60, 80, generator=generator)
+    augment = CameraAugment(share=0.5)
+    first = augment(top, bottom, torch.Generator().manual_seed(7))
+    again = augment(top, bottom, torch.Generator().manual_seed(7))
+    assert all(torch.equal(a, b) for a, b in zip(first, again))
+    for augmented in first:
+        assert augmented.min() >= 0.0 and augmented.max() <= 1.0
+    changed = (first[0] - top).abs().flatten(1).amax(1) > 1e-5
+    assert 16 <= int(changed.sum()) <= 48, int(changed.sum())
+    untouched = CameraAugment(share=0.0)(top, bottom, torch.Generator().manual_seed(7))
+    # Without a share, only the round trip through the sensor's curve remains.
+    assert torch.allclose(untouched[0], top, atol=1e-5) and torch.allclose(untouched[1], bottom, atol=1e-5)
+
+
+def test_camera_augmentation_is_named_in_the_notes():
+    args = parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "0.5"])
+    assert "camera conditions augmented on 50% of the rows" in notes_of(args, torch.device("cpu"))
+    with pytest.raises(SystemExit):
+        parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "2"])
