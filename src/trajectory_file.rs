@@ -20,10 +20,12 @@ use serde::{Deserialize, Serialize};
 struct RecordedEpisode {
     ball: Vec<[f64; 2]>,
     computed_commands: u64,
-    /// The conditions this episode was seen under, when not clean (a randomized run's
-    /// draw for the seed).
+    /// The run's conditions, when not clean (`randomized`, or NAME:SEVERITY[,...]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     conditions: Option<String>,
+    /// In a randomized run, the conditions this episode drew from its seed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    drawn_conditions: Option<String>,
     duration_s: f64,
     failure: Option<String>,
     /// When the ball was first inside either image, s (absent: never, or an older file).
@@ -97,7 +99,9 @@ fn recorded_episode(result: &EpisodeResult) -> RecordedEpisode {
     RecordedEpisode {
         ball: points(&result.ball_path),
         computed_commands: result.computed_commands,
-        conditions: (!result.setup.conditions.is_clean()).then(|| {
+        conditions: (!result.setup.conditions.is_clean())
+            .then(|| result.setup.conditions.to_string()),
+        drawn_conditions: result.setup.conditions.is_randomized().then(|| {
             result
                 .setup
                 .conditions
@@ -229,6 +233,37 @@ mod tests {
         let back = read_trajectories(&path).expect("reads");
         assert_eq!(back[0].robot_path, results[0].robot_path);
         assert_eq!(back[0].distance_walked_m, 1.25);
+        let _ = std::fs::remove_file(&path);
+    }
+
+    #[test]
+    fn conditions_come_back_as_the_run_named_them() {
+        let path = std::env::temp_dir().join(format!("dribble-cond-{}.json", std::process::id()));
+        for text in ["noise:3", "randomized"] {
+            let conditions: Conditions = text.parse().expect("parses");
+            let mut results = parse_trajectories(
+                r#"{"engine": null, "episodes": [{"seed": 7, "outcome": "goal", "duration_s": 3.0,
+                    "computed_commands": 90, "failure": null, "robot": [[0.0, 0.0]], "ball": [[1.0, 2.0]]}]}"#,
+            )
+            .expect("parses");
+            results[0].setup = results[0].setup.under(conditions);
+            write_trajectories(&results, None, &path).expect("written");
+            let written: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
+            assert_eq!(written["conditions"], text);
+            assert_eq!(
+                written["episodes"][0].get("drawn_conditions").is_some(),
+                text == "randomized"
+            );
+            let back = read_trajectories(&path).expect("reads");
+            assert_eq!(back[0].setup.conditions, conditions);
+            // A journal line carries them too, so a resumed or merged run names them again.
+            let line = episode_line(&back[0], None).expect("line");
+            assert_eq!(
+                parse_episode_line(&line).expect("parses").0.setup,
+                back[0].setup
+            );
+        }
         let _ = std::fs::remove_file(&path);
     }
 

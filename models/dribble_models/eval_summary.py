@@ -85,8 +85,9 @@ def summarise_episode(episode: dict) -> dict:
     summary["turned_rad"] = round(turned_rad(heading), 3) if heading else None
     summary["first_sighting_s"] = episode.get("first_sighting_s")
     summary["failure_class"] = failure_class(summary)
-    if episode.get("conditions"):
-        summary["conditions"] = episode["conditions"]
+    if episode.get("drawn_conditions"):
+        # A randomized run: what this episode drew from its seed.
+        summary["drawn_conditions"] = episode["drawn_conditions"]
     return summary
 
 
