@@ -283,3 +283,45 @@ fn peak_rise(without: &TopThumbnail, with: &TopThumbnail) -> u8 {
         .max()
         .unwrap_or(0)
 }
+
+/// Resident memory of this process, bytes (Linux).
+fn resident_bytes() -> u64 {
+    let statm = std::fs::read_to_string("/proc/self/statm").expect("Linux");
+    let pages: u64 = statm
+        .split_whitespace()
+        .nth(1)
+        .and_then(|p| p.parse().ok())
+        .expect("resident pages");
+    pages * 4096
+}
+
+/// Lavapipe specialises a shader on the uniform values its control flow reads and keeps every
+/// variant: with the ball's shadow caster in a uniform buffer, each frame compiled another one
+/// (about 2 MB a frame; an evaluation under light died of it at 24 GB). The light and the
+/// camera effects live in storage buffers for this.
+#[test]
+fn frames_under_light_and_camera_effects_keep_memory_flat() {
+    let mut renderer = renderer();
+    renderer.begin_episode(&look("light:5,motion-blur:5,noise:3,robots:5", 8));
+    let mut frame = TopFrame::new_boxed();
+    let mut render_at = |k: u64, renderer: &mut Renderer| {
+        let camera = top_camera(FieldPose::new(0.0, 0.0, k as f32 * 0.03));
+        let scene = SceneState {
+            ball: Some((Vec3::new(1.0 + k as f32 * 0.01, 0.2, 0.05), Quat::IDENTITY)),
+            time_ns: k * 33_333_333,
+        };
+        renderer
+            .render(CameraPosition::Top, &camera, &scene, &mut frame)
+            .expect("render");
+    };
+    for k in 0..10 {
+        render_at(k, &mut renderer);
+    }
+    let settled = resident_bytes();
+    for k in 10..70 {
+        render_at(k, &mut renderer);
+    }
+    let grown = resident_bytes().saturating_sub(settled);
+    println!("60 frames under light and camera effects: resident memory grew {grown} bytes");
+    assert!(grown < 40 << 20, "grew {grown} bytes in 60 frames");
+}

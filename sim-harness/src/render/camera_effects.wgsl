@@ -19,7 +19,9 @@ struct Effects {
 
 @group(0) @binding(0) var image: texture_2d<f32>;
 @group(0) @binding(1) var<storage, read_write> packed: array<u32>;
-@group(0) @binding(2) var<uniform> effects: Effects;
+// Storage, not uniform: lavapipe would specialise the shader on the per-frame values its
+// control flow reads (the samples' count), keeping a compiled variant per distinct frame.
+@group(0) @binding(2) var<storage, read> effects: Effects;
 
 const GAMMA: f32 = 2.2;
 const TAU: f32 = 6.2831853;

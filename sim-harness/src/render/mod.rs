@@ -185,7 +185,7 @@ impl Renderer {
                 binding: 0,
                 visibility: wgpu::ShaderStages::FRAGMENT,
                 ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
+                    ty: wgpu::BufferBindingType::Storage { read_only: true },
                     has_dynamic_offset: false,
                     min_binding_size: wgpu::BufferSize::new(size_of::<LightUniform>() as u64),
                 },
@@ -201,7 +201,7 @@ impl Renderer {
         let light = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("light"),
             size: size_of::<LightUniform>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let light_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -221,7 +221,7 @@ impl Renderer {
                     binding: 2,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
                         has_dynamic_offset: false,
                         min_binding_size: wgpu::BufferSize::new(size_of::<CameraEffects>() as u64),
                     },
@@ -735,7 +735,7 @@ fn camera_target(
     let effects = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("camera effects"),
         size: size_of::<CameraEffects>() as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
     let effects_group = device.create_bind_group(&wgpu::BindGroupDescriptor {

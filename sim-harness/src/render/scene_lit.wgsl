@@ -27,7 +27,10 @@ struct Light {
 
 @group(0) @binding(0) var<uniform> camera: Camera;
 @group(1) @binding(0) var<uniform> model: Model;
-@group(2) @binding(0) var<uniform> light: Light;
+// A read-only storage buffer, not a uniform one: lavapipe specialises a shader on the uniform
+// values its control flow reads (the loops' counts here, and the ball's caster that changes
+// every frame), compiling and keeping a new variant per frame without bound.
+@group(2) @binding(0) var<storage, read> light: Light;
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
