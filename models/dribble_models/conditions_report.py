@@ -40,13 +40,11 @@ CONDITIONS = [
     "unseen-venue",
     "robots",
 ]
-#: Where a seed set's clean closed loop lives in a policy's directory, and its seeds.
-CLEAN_SOURCES = {
-    "fresh": ("fresh.json", range(30_000, 30_100)),
-    "fresh20": ("fresh.json", range(30_000, 30_020)),
-    "selection": ("select.json", range(20_000, 20_050)),
-    "test": ("eval.json", range(10_000, 10_020)),
-}
+#: Where a seed set's clean closed loop lives in a policy's directory, by the seed set's name
+#: (fresh, fresh20: fresh.json; selection, selection25, selection-first-9: select.json; test:
+#: eval.json); it is cut to the seeds the condition runs played.
+CLEAN_SOURCES = {"fresh": "fresh.json", "selection": "select.json", "test": "eval.json"}
+
 #: The frame in the picture: a selection seed, a second and a half into a walk and turn.
 PICTURE_SEED = 20_003
 SEVERITIES_PICTURED = (1, 3, 5)
@@ -64,15 +62,17 @@ def goals_of(summary: dict) -> tuple[int, int]:
 
 
 def clean_reference(policy_dir: Path, seed_set: str, runs: Path) -> dict | None:
-    """The policy's clean summary on the seed set's seeds (see the module's documentation)."""
+    """The policy's clean summary on the seeds its condition runs in `runs` played: a
+    `clean.json` there, else its own clean closed loop (CLEAN_SOURCES) cut to those seeds."""
     own = runs / "clean.json"
     if own.is_file():
         return json.loads(own.read_text())
-    source = CLEAN_SOURCES.get(seed_set)
-    if source is None or not (policy_dir / source[0]).is_file():
+    source = next((file for prefix, file in CLEAN_SOURCES.items() if seed_set.startswith(prefix)), None)
+    played = [json.loads(p.read_text()) for p in sorted(runs.glob("*.json"))]
+    if source is None or not played or not (policy_dir / source).is_file():
         return None
-    summary = json.loads((policy_dir / source[0]).read_text())
-    seeds = source[1]
+    seeds = {e["seed"] for e in played[0]["episodes"]}
+    summary = json.loads((policy_dir / source).read_text())
     episodes = [e for e in summary["episodes"] if e["seed"] in seeds]
     if len(episodes) != len(seeds):
         return None

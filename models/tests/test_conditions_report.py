@@ -44,7 +44,9 @@ def test_runs_on_other_engines_or_seeds_than_clean_are_refused(tmp_path):
     _summary(runs / "noise-3.json", range(30_000, 30_020), 9, engine="tract")
     with pytest.raises(conditions_report.ReportError, match="ran on tract"):
         conditions_report.report(root, policies)
-    _summary(runs / "noise-3.json", range(30_001, 30_021), 9)
+    # Runs beside each other on other seeds than the first one (whose seeds cut the clean run).
+    _summary(runs / "noise-3.json", range(30_000, 30_020), 9)
+    _summary(runs / "exposure-3.json", range(30_001, 30_021), 9)
     with pytest.raises(conditions_report.ReportError, match="other seeds"):
         conditions_report.report(root, policies)
 
