@@ -18,7 +18,7 @@ use crate::conditions::Occluder;
 use crate::conditions::venue::goal_occluders;
 use crate::field::FieldGeometry;
 use crate::pose::FieldPose;
-use crate::visibility::{SightingRule, Visibility};
+use crate::visibility::SightingRule;
 use crate::walk::HeadSway;
 
 /// What the teacher believes about the ball at one decision.
@@ -91,20 +91,14 @@ impl BallMemory {
 
     /// Updates the memory with what the cameras show from `robot` at `time_s` of the ball at
     /// `ball` (the truth, used only through the images' geometry), and says what is known.
-    pub fn perceive(
-        &mut self,
-        robot: FieldPose,
-        ball: Vec2,
-        target_side: f32,
-        time_s: f64,
-    ) -> BallBelief {
-        let seen = self.sees(robot, ball, target_side);
+    pub fn perceive(&mut self, robot: FieldPose, ball: Vec2, time_s: f64) -> BallBelief {
+        let seen = self.sees(robot, ball);
         if seen {
             self.remember(robot, ball, time_s);
             return BallBelief::At(ball);
         }
         if let Some((remembered, when)) = self.last_seen {
-            let should_see = self.sees(robot, remembered, target_side);
+            let should_see = self.sees(robot, remembered);
             if should_see || time_s - when > Self::FORGET_AFTER_S {
                 self.last_seen = None;
             } else {
@@ -130,14 +124,8 @@ impl BallMemory {
         top.project(middle).is_some_and(|p| top.contains(p))
     }
 
-    fn sees(&self, robot: FieldPose, ball: Vec2, target_side: f32) -> bool {
-        match &self.rule {
-            SightingRule::CentreInImage => {
-                Visibility::of(&self.cameras, &self.field, robot, ball, target_side)
-                    .ball_in_either()
-            }
-            rule => rule.sees_ball(&self.cameras, &self.field, robot, ball),
-        }
+    fn sees(&self, robot: FieldPose, ball: Vec2) -> bool {
+        self.rule.sees_ball(&self.cameras, &self.field, robot, ball)
     }
 
     fn remember(&mut self, robot: FieldPose, ball: Vec2, time_s: f64) {
@@ -164,7 +152,7 @@ mod tests {
             Vec2::new(-2.0, 0.1),
         ] {
             assert_eq!(
-                memory().perceive(robot, ball, 1.0, 0.0),
+                memory().perceive(robot, ball, 0.0),
                 BallBelief::Search { turn: 1.0 },
                 "{ball}"
             );
@@ -176,13 +164,13 @@ mod tests {
         let mut memory = memory();
         let ball = Vec2::new(2.0, -0.3);
         let ahead = FieldPose::new(0.0, 0.0, 0.0);
-        assert_eq!(memory.perceive(ahead, ball, 1.0, 0.0), BallBelief::At(ball));
+        assert_eq!(memory.perceive(ahead, ball, 0.0), BallBelief::At(ball));
         // Turned away: the ball is behind, still remembered where it was.
         let away = FieldPose::new(0.0, 0.0, 3.0);
-        assert_eq!(memory.perceive(away, ball, 1.0, 1.0), BallBelief::At(ball));
+        assert_eq!(memory.perceive(away, ball, 1.0), BallBelief::At(ball));
         // Forgotten after a while: search toward the side it was last seen on (right).
         assert_eq!(
-            memory.perceive(away, ball, 1.0, 1.0 + BallMemory::FORGET_AFTER_S + 0.1),
+            memory.perceive(away, ball, 1.0 + BallMemory::FORGET_AFTER_S + 0.1),
             BallBelief::Search { turn: -1.0 }
         );
     }
@@ -192,12 +180,12 @@ mod tests {
         let mut memory = memory();
         let ahead = FieldPose::new(0.0, 0.0, 0.0);
         assert_eq!(
-            memory.perceive(ahead, Vec2::new(2.0, 0.3), 1.0, 0.0),
+            memory.perceive(ahead, Vec2::new(2.0, 0.3), 0.0),
             BallBelief::At(Vec2::new(2.0, 0.3))
         );
         // The ball rolled behind the robot while it looked at the old place.
         assert_eq!(
-            memory.perceive(ahead, Vec2::new(-1.5, 0.0), 1.0, 0.5),
+            memory.perceive(ahead, Vec2::new(-1.5, 0.0), 0.5),
             BallBelief::Search { turn: 1.0 }
         );
     }

@@ -242,7 +242,7 @@ impl Expert {
         let Some(memory) = &mut self.memory else {
             return self.decide_knowing(truth);
         };
-        match memory.perceive(truth.robot, truth.ball, truth.target_side, truth.time_s) {
+        match memory.perceive(truth.robot, truth.ball, truth.time_s) {
             BallBelief::At(ball) => self.decide_knowing(&GroundTruth { ball, ..*truth }),
             BallBelief::Search { turn } => {
                 self.phase = Phase::Search;

@@ -350,11 +350,6 @@ impl Renderer {
         self.previous = [None; 2];
     }
 
-    /// The look frames are rendered with now.
-    pub fn look(&self) -> &EpisodeLook {
-        &self.look
-    }
-
     /// The adapter in use, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, llvmpipe ...)".
     pub fn adapter(&self) -> &str {
         &self.adapter
