@@ -17,11 +17,16 @@ struct Effects {
     seed: vec4<u32>,
 };
 
+// The rendered image in linear light (`linear_light.wgsl` raised it to GAMMA once a texel).
 @group(0) @binding(0) var image: texture_2d<f32>;
 @group(0) @binding(1) var<storage, read_write> packed: array<u32>;
-// Storage, not uniform: lavapipe would specialise the shader on the per-frame values its
-// control flow reads (the samples' count), keeping a compiled variant per distinct frame.
-@group(0) @binding(2) var<storage, read> effects: Effects;
+// The same buffer twice. As a uniform buffer its values are loaded once for every
+// invocation of a group (a storage buffer's are gathered per invocation), but lavapipe
+// specialises a shader on the uniform values its control flow reads (the samples' count,
+// the noise that follows the gain frame by frame) and keeps every variant: what decides
+// control flow is read through the storage alias.
+@group(0) @binding(2) var<uniform> effects: Effects;
+@group(0) @binding(3) var<storage, read> effects_flow: Effects;
 
 const GAMMA: f32 = 2.2;
 const TAU: f32 = 6.2831853;
@@ -56,10 +61,10 @@ fn linear_at(position: vec2<f32>) -> vec3<f32> {
     let f = q - floor(q);
     let last = vec2<u32>(size) - vec2<u32>(1u);
     let i1 = min(i0 + vec2<u32>(1u), last);
-    let a = pow(textureLoad(image, i0, 0).rgb, vec3<f32>(GAMMA));
-    let b = pow(textureLoad(image, vec2<u32>(i1.x, i0.y), 0).rgb, vec3<f32>(GAMMA));
-    let c = pow(textureLoad(image, vec2<u32>(i0.x, i1.y), 0).rgb, vec3<f32>(GAMMA));
-    let d = pow(textureLoad(image, i1, 0).rgb, vec3<f32>(GAMMA));
+    let a = textureLoad(image, i0, 0).rgb;
+    let b = textureLoad(image, vec2<u32>(i1.x, i0.y), 0).rgb;
+    let c = textureLoad(image, vec2<u32>(i0.x, i1.y), 0).rgb;
+    let d = textureLoad(image, i1, 0).rgb;
     return mix(mix(a, b, f.x), mix(c, d, f.x), f.y);
 }
 
@@ -87,7 +92,7 @@ fn exposed(x: u32, y: u32) -> vec3<f32> {
     let exposure = effects.omega_exposure.w;
     let readout = effects.readout_vignetting_softness_samples.x;
     let softness = effects.readout_vignetting_softness_samples.z;
-    let samples = u32(effects.readout_vignetting_softness_samples.w);
+    let samples = u32(effects_flow.readout_vignetting_softness_samples.w);
     // Rows are read top to bottom during the readout; the render is the frame's middle.
     let row_time = (pixel.y / size.y - 0.5) * readout;
     var sum = vec3<f32>(0.0);
@@ -95,7 +100,7 @@ fn exposed(x: u32, y: u32) -> vec3<f32> {
         let share = (f32(i) + 0.5) / f32(samples);
         let t = row_time + (share - 0.5) * exposure;
         var at = rotated(pixel, omega * t);
-        if (softness > 0.0) {
+        if (effects_flow.readout_vignetting_softness_samples.z > 0.0) {
             // A Vogel spiral of radius 2 sigma: variance sigma^2 along each axis.
             let k = f32(i % 8u);
             let radius = 2.0 * softness * sqrt((k + 0.5) / 8.0);
@@ -116,7 +121,7 @@ fn processed(x: u32, y: u32) -> vec3<f32> {
     var raw = exposed(x, y);
     let read = effects.gain_contrast_noise.z;
     let shot = effects.gain_contrast_noise.w;
-    if (read > 0.0 || shot > 0.0) {
+    if (effects_flow.gain_contrast_noise.z > 0.0 || effects_flow.gain_contrast_noise.w > 0.0) {
         for (var c = 0u; c < 3u; c = c + 1u) {
             let sigma = sqrt(read + shot * max(raw[c], 0.0));
             raw[c] = raw[c] + sigma * gaussian(x, y, c);

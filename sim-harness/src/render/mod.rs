@@ -29,6 +29,8 @@ pub use scene::{Mesh, Vertex, ball_mesh, static_scene, static_scene_in};
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// The resolved image in linear light, for the effects pass.
+const LINEAR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const SAMPLES: u32 = 4;
 /// Uniform buffer offsets must be multiples of this (wgpu's guaranteed minimum).
 const UNIFORM_STRIDE: u64 = 256;
@@ -102,6 +104,8 @@ struct CameraTarget {
     packed: wgpu::Buffer,
     readback: wgpu::Buffer,
     pack_group: wgpu::BindGroup,
+    /// The resolved image in linear light, and the pass that makes it (effects only).
+    linear_group: wgpu::BindGroup,
     effects: wgpu::Buffer,
     effects_group: wgpu::BindGroup,
 }
@@ -114,6 +118,7 @@ pub struct Renderer {
     scene_pipeline: wgpu::RenderPipeline,
     lit_pipeline: wgpu::RenderPipeline,
     pack_pipeline: wgpu::ComputePipeline,
+    linear_pipeline: wgpu::ComputePipeline,
     effects_pipeline: wgpu::ComputePipeline,
     field: FieldGeometry,
     goal_depth: f32,
@@ -181,16 +186,20 @@ impl Renderer {
         );
         let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("light"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::FRAGMENT,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only: true },
-                    has_dynamic_offset: false,
-                    min_binding_size: wgpu::BufferSize::new(size_of::<LightUniform>() as u64),
-                },
-                count: None,
-            }],
+            entries: &[
+                read_twice_entry(
+                    0,
+                    wgpu::ShaderStages::FRAGMENT,
+                    size_of::<LightUniform>(),
+                    false,
+                ),
+                read_twice_entry(
+                    1,
+                    wgpu::ShaderStages::FRAGMENT,
+                    size_of::<LightUniform>(),
+                    true,
+                ),
+            ],
         });
         let lit_pipeline = render_pipeline(
             &device,
@@ -201,32 +210,40 @@ impl Renderer {
         let light = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("light"),
             size: size_of::<LightUniform>() as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            usage: READ_TWICE,
             mapped_at_creation: false,
         });
         let light_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("light"),
             layout: &light_layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: light.as_entire_binding(),
-            }],
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: light.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: light.as_entire_binding(),
+                },
+            ],
         });
         let effects_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("effects"),
             entries: &[
                 image_entry(),
                 packed_entry(),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(size_of::<CameraEffects>() as u64),
-                    },
-                    count: None,
-                },
+                read_twice_entry(
+                    2,
+                    wgpu::ShaderStages::COMPUTE,
+                    size_of::<CameraEffects>(),
+                    false,
+                ),
+                read_twice_entry(
+                    3,
+                    wgpu::ShaderStages::COMPUTE,
+                    size_of::<CameraEffects>(),
+                    true,
+                ),
             ],
         });
         let effects_pipeline = compute_pipeline(
@@ -235,6 +252,29 @@ impl Renderer {
             include_str!("camera_effects.wgsl"),
             "effects_main",
             &effects_layout,
+        );
+        let linear_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("linear light"),
+            entries: &[
+                image_entry(),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: LINEAR_FORMAT,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let linear_pipeline = compute_pipeline(
+            &device,
+            "linear light",
+            include_str!("linear_light.wgsl"),
+            "linear_main",
+            &linear_layout,
         );
         let pack_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("pack"),
@@ -278,7 +318,7 @@ impl Renderer {
             camera_target(
                 &device,
                 &camera_layout,
-                [&pack_layout, &effects_layout],
+                [&pack_layout, &linear_layout, &effects_layout],
                 mount.width,
                 mount.height,
             )
@@ -290,6 +330,7 @@ impl Renderer {
             scene_pipeline,
             lit_pipeline,
             pack_pipeline,
+            linear_pipeline,
             effects_pipeline,
             field: *field,
             goal_depth,
@@ -466,6 +507,15 @@ impl Renderer {
                 pass.draw(0..self.ball_mesh.vertices, 0..1);
             }
         }
+        if effects.is_some() {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("linear light"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.linear_pipeline);
+            pass.set_bind_group(0, &target.linear_group, &[]);
+            pass.dispatch_workgroups(target.width.div_ceil(8), target.height.div_ceil(8), 1);
+        }
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("pack yuyv"),
@@ -603,6 +653,37 @@ fn compute_pipeline(
     })
 }
 
+/// How the light and effects buffers are used: each is bound twice, as a uniform buffer
+/// for the arithmetic and as a read-only storage buffer for what decides control flow (see
+/// `scene_lit.wgsl`: lavapipe loads a uniform value once a group, but keeps a shader variant
+/// per distinct uniform value its branches and loops read).
+const READ_TWICE: wgpu::BufferUsages = wgpu::BufferUsages::UNIFORM
+    .union(wgpu::BufferUsages::STORAGE)
+    .union(wgpu::BufferUsages::COPY_DST);
+
+/// One of the two bindings of a [`READ_TWICE`] buffer of `size` bytes.
+fn read_twice_entry(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+    size: usize,
+    storage: bool,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: if storage {
+                wgpu::BufferBindingType::Storage { read_only: true }
+            } else {
+                wgpu::BufferBindingType::Uniform
+            },
+            has_dynamic_offset: false,
+            min_binding_size: wgpu::BufferSize::new(size as u64),
+        },
+        count: None,
+    }
+}
+
 /// The resolved image a compute pass reads (binding 0).
 fn image_entry() -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
@@ -645,7 +726,7 @@ fn upload(device: &wgpu::Device, label: &str, mesh: &Mesh) -> GpuMesh {
 fn camera_target(
     device: &wgpu::Device,
     camera_layout: &wgpu::BindGroupLayout,
-    [pack_layout, effects_layout]: [&wgpu::BindGroupLayout; 2],
+    [pack_layout, linear_layout, effects_layout]: [&wgpu::BindGroupLayout; 3],
     width: u32,
     height: u32,
 ) -> CameraTarget {
@@ -686,6 +767,26 @@ fn camera_target(
         1,
         wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
     );
+    let linear = texture(
+        "linear light",
+        LINEAR_FORMAT,
+        1,
+        wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
+    );
+    let linear_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("linear light"),
+        layout: linear_layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::TextureView(&resolved),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: wgpu::BindingResource::TextureView(&linear),
+            },
+        ],
+    });
     let bytes = u64::from(width) * u64::from(height) * 2;
     let packed = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("yuyv"),
@@ -730,7 +831,7 @@ fn camera_target(
     let effects = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("camera effects"),
         size: size_of::<CameraEffects>() as u64,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        usage: READ_TWICE,
         mapped_at_creation: false,
     });
     let effects_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -739,7 +840,7 @@ fn camera_target(
         entries: &[
             wgpu::BindGroupEntry {
                 binding: 0,
-                resource: wgpu::BindingResource::TextureView(&resolved),
+                resource: wgpu::BindingResource::TextureView(&linear),
             },
             wgpu::BindGroupEntry {
                 binding: 1,
@@ -747,6 +848,10 @@ fn camera_target(
             },
             wgpu::BindGroupEntry {
                 binding: 2,
+                resource: effects.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
                 resource: effects.as_entire_binding(),
             },
         ],
@@ -764,5 +869,6 @@ fn camera_target(
         packed,
         readback,
         pack_group,
+        linear_group,
     }
 }

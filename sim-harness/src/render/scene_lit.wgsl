@@ -27,10 +27,13 @@ struct Light {
 
 @group(0) @binding(0) var<uniform> camera: Camera;
 @group(1) @binding(0) var<uniform> model: Model;
-// A read-only storage buffer, not a uniform one: lavapipe specialises a shader on the uniform
-// values its control flow reads (the loops' counts here, and the ball's caster that changes
-// every frame), compiling and keeping a new variant per frame without bound.
-@group(2) @binding(0) var<storage, read> light: Light;
+// The same buffer twice. Read as a uniform buffer its values are loaded once for every
+// fragment of a group (a storage buffer's are gathered per fragment: two thirds more time on
+// lavapipe), but lavapipe specialises a shader on the uniform values its control flow reads
+// and keeps every variant (the ball's caster changes every frame: about 2 MB a frame): so
+// what decides control flow, the counts, is read through the storage alias.
+@group(2) @binding(0) var<uniform> light: Light;
+@group(2) @binding(1) var<storage, read> light_flow: Light;
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
@@ -100,7 +103,7 @@ fn point_distance(point: vec3<f32>, a: vec3<f32>, b: vec3<f32>) -> f32 {
 fn lit(point: vec3<f32>) -> f32 {
     let towards = light.towards_share.xyz;
     let end = point + towards * 25.0;
-    for (var i = 0u; i < min(light.counts.x, MAX_CASTERS); i = i + 1u) {
+    for (var i = 0u; i < min(light_flow.counts.x, MAX_CASTERS); i = i + 1u) {
         let a = light.casters[2u * i];
         let b = light.casters[2u * i + 1u].xyz;
         // A point on a caster's own surface is not shadowed by it.
@@ -134,7 +137,7 @@ fn fragment_main(in: VertexOut) -> @location(0) vec4<f32> {
     let facing = min(abs(dot(n, towards)) / max(towards.z, 0.3), 1.6);
     var factor = (1.0 - share) + share * reach * facing;
     if (reach > 0.0 && n.z > 0.9 && in.world.z < 0.01) {
-        for (var i = 0u; i < min(light.counts.y, MAX_SPOTS); i = i + 1u) {
+        for (var i = 0u; i < min(light_flow.counts.y, MAX_SPOTS); i = i + 1u) {
             let first = light.spots[2u * i];
             let second = light.spots[2u * i + 1u];
             let d = in.world.xy - first.xy;
