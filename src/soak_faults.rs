@@ -1,5 +1,5 @@
 //! Faults `dribble soak --faults` injects while the controller runs, and what each must do
-//! (DESIGN.md, README "Two processes"):
+//! (DESIGN.md; the book, docs/src/design/transport.md):
 //!
 //! - **camera pause**: both streams stop for 1 s. The controller stops the robot on its first
 //!   tick past the 100 ms silence limit ([`stop_within`]: the limit, one 10 ms tick and the

@@ -1,6 +1,6 @@
 """Episodes per hour on this machine: serial ``dribble eval``, then the same seeds as Ray shares
 with one and with two workers (``dribble_models.cluster``, a local Ray started for each run),
-with the CPU each run kept busy. Writes a JSON and the Markdown table the README shows
+with the CPU each run kept busy. Writes a JSON and the Markdown table the book shows (docs/src/guide/gym-ray.md)
 (``scripts/results`` copies it in); fails unless all runs give the same trajectories file.
 
     PYTHONPATH=models python -m dribble_models.cluster_throughput \\

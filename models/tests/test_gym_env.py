@@ -119,8 +119,8 @@ def test_a_bad_binary_or_teacher_is_refused_with_the_reason(tmp_path):
         env.close()
 
 
-def test_the_readmes_ten_lines_run(tmp_path, capsys):
-    readme = (REPOSITORY / "README.md").read_text()
+def test_the_books_ten_lines_run(tmp_path, capsys):
+    readme = (REPOSITORY / "docs" / "src" / "guide" / "gym-ray.md").read_text()
     block = readme.split("<!-- gym example -->\n```python\n", 1)[1].split("```", 1)[0]
     assert "range(10000, 10020)" in block and 'gym.make("dribble/NaoDribble-v0")' in block
     # One short episode instead of twenty whole ones.
@@ -128,7 +128,7 @@ def test_the_readmes_ten_lines_run(tmp_path, capsys):
         'gym.make("dribble/NaoDribble-v0")', 'gym.make("dribble/NaoDribble-v0", time_limit_s=1.0)'
     )
     namespace: dict = {}
-    exec(compile(short, "README.md", "exec"), namespace)
+    exec(compile(short, "gym-ray.md", "exec"), namespace)
     namespace["env"].close()
     assert capsys.readouterr().out.strip() == "0 goals of 20"
 
