@@ -252,8 +252,9 @@ fn open_process(
     Ok(ControllerSession::Process(Box::new(link)))
 }
 
-/// `--controller`, else `dribble-controller` beside this executable, else on the PATH.
-fn controller_binary(given: Option<&Path>) -> anyhow::Result<PathBuf> {
+/// The controller program every command starts: `--controller`, else `dribble-controller`
+/// beside this executable, else on the PATH.
+pub(crate) fn controller_binary(given: Option<&Path>) -> anyhow::Result<PathBuf> {
     if let Some(path) = given {
         if !path.is_file() {
             bail!("--controller {}: no such file", path.display());

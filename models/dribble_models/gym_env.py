@@ -10,7 +10,7 @@ does in ``dribble record``/``eval`` (the test seeds are 10000..10019, the traini
 0..99); ``reset()`` without a seed draws one from the environment's generator, from
 100000 up, outside every range the project names.
 
-The environment runs ``dribble gym-server`` (src/gym_server_command.rs) as a child process
+The environment runs ``dribble gym-server`` (src/commands/gym_server.rs) as a child process
 and talks to it over pipes: the same simulator, renderer and controller code that
 ``dribble eval`` runs. An **observation** comes whenever the robot's controller would
 compute a command (both cameras have a new frame, about 30 times a simulated second): the

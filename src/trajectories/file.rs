@@ -72,7 +72,7 @@ pub fn write_trajectories(
 }
 
 /// One episode and the engine that ran it as one line of JSON (no newline): what
-/// [`crate::eval_journal`] appends as each episode ends. It keeps what the trajectories file
+/// [`crate::evaluation::journal`] appends as each episode ends. It keeps what the trajectories file
 /// keeps, exactly, so that a file written from lines read back is the one an uninterrupted
 /// run writes.
 pub fn episode_line(result: &EpisodeResult, engine: Option<&str>) -> anyhow::Result<String> {
@@ -183,7 +183,7 @@ fn parse_trajectories(text: &str) -> anyhow::Result<Vec<EpisodeResult>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trajectory_plot::title;
+    use crate::trajectories::plot::title;
 
     #[test]
     fn episodes_come_back_with_their_seeds_starts() {

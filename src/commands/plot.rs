@@ -1,15 +1,15 @@
 //! `dribble plot`: the trajectory figure drawn again from the JSON that `dribble eval
 //! --trajectories` wrote, without playing the episodes again (a closed-loop evaluation of
 //! twenty episodes takes minutes to an hour; a figure takes a second). The file's format:
-//! [`crate::trajectory_file`].
+//! [`crate::trajectories::file`].
 
 use std::path::PathBuf;
 
 use clap::Args;
 use dribble_sim::dataset::Outcome;
 
-use crate::trajectory_file::read_trajectories;
-use crate::trajectory_plot::{plot_trajectories, title};
+use crate::trajectories::file::read_trajectories;
+use crate::trajectories::plot::{plot_trajectories, title};
 
 #[derive(Debug, Args)]
 pub struct PlotArgs {

@@ -12,7 +12,7 @@ use dribble_sim::runner::EpisodeResult;
 use glam::Vec2;
 use plotters::prelude::*;
 
-use crate::plot_image::{FONT, Label, draw_png};
+use crate::picture::{FONT, Label, draw_png};
 
 /// Distinct colours for episodes, in turn (matplotlib's tab10, white swapped for black).
 const PALETTE: [RGBColor; 10] = [
@@ -87,7 +87,7 @@ pub fn title(driver: &str, results: &[EpisodeResult]) -> String {
         .iter()
         .filter(|r| r.outcome == Outcome::Goal)
         .count();
-    let (low, high) = crate::goal_rate::wilson_interval(goals, results.len());
+    let (low, high) = crate::evaluation::goal_rate::wilson_interval(goals, results.len());
     let seeds = match (results.first(), results.last()) {
         (Some(first), Some(last)) => {
             format!(", seeds {}..{}", first.setup.seed, last.setup.seed)

@@ -6,7 +6,7 @@
 //!
 //! With `--trajectories FILE` the children's files and journals are kept in `FILE.jobs/`
 //! until the merged file is written, so that `--resume` (passed on to each child) continues a
-//! cut run's shards where they stopped ([`crate::eval_journal`]).
+//! cut run's shards where they stopped ([`crate::evaluation::journal`]).
 //!
 //! Children rather than threads: the controller process, the renderer and the iceoryx2 node
 //! are per process already, and a child that fails takes only its own episodes with it.
@@ -18,7 +18,7 @@ use std::process::{Child, Command, Stdio};
 use anyhow::{Context, bail, ensure};
 use dribble_sim::runner::EpisodeResult;
 
-use crate::trajectory_file::{read_trajectories, read_trajectories_engine};
+use crate::trajectories::file::{read_trajectories, read_trajectories_engine};
 
 /// Flags each child gets a value of its own for (the rest are passed on as given).
 const PER_JOB_FLAGS: [&str; 6] = [

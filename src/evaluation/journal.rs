@@ -3,7 +3,7 @@
 //! ends. A run cut off (a session's end, a killed job) continues with `--resume`: the
 //! episodes the journal holds for the same settings are kept and only the others are
 //! played. Episodes are deterministic in their seed and a journal line keeps exactly what the
-//! trajectories file keeps ([`crate::trajectory_file::episode_line`]), so the file a resumed
+//! trajectories file keeps ([`crate::trajectories::file::episode_line`]), so the file a resumed
 //! run writes is an uninterrupted run's byte for byte (`tests/cli_episodes.rs` checks it).
 //! The tick latencies of kept episodes are not kept: a resumed run reports the latency of
 //! the episodes it played itself.
@@ -24,7 +24,7 @@ use dribble_sim::runner::EpisodeResult;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::trajectory_file::{episode_line, parse_episode_line};
+use crate::trajectories::file::{episode_line, parse_episode_line};
 
 /// What decides an episode's outcome besides its seed: a journal is resumed from only when
 /// it names the same.

@@ -16,9 +16,9 @@ use clap::{Args, Subcommand};
 use dribble_sim::dataset::{DatasetIndex, Outcome};
 use dribble_sim::runner::EpisodeResult;
 
-use crate::eval_command::{print_header, print_row};
-use crate::trajectory_file::{read_trajectories, read_trajectories_engine, write_trajectories};
-use crate::trajectory_plot::{plot_trajectories, title};
+use crate::commands::eval::{print_header, print_row};
+use crate::trajectories::file::{read_trajectories, read_trajectories_engine, write_trajectories};
+use crate::trajectories::plot::{plot_trajectories, title};
 
 #[derive(Debug, Args)]
 pub struct MergeArgs {
@@ -190,7 +190,7 @@ fn merge_trajectories(
     if let Some(engine) = &engine {
         println!("engine: {engine}");
     }
-    let (low, high) = crate::goal_rate::wilson_interval(goals, results.len());
+    let (low, high) = crate::evaluation::goal_rate::wilson_interval(goals, results.len());
     println!(
         "goals: {goals} of {} (95 % Wilson interval {low:.2}-{high:.2})",
         results.len()

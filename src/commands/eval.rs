@@ -24,11 +24,11 @@ use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, run_episode_obse
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
-use crate::eval_jobs::{JobPlan, play};
-use crate::eval_journal::{EvalJournal, KeptEpisode, RunSettings};
+use crate::evaluation::jobs::{JobPlan, play};
+use crate::evaluation::journal::{EvalJournal, KeptEpisode, RunSettings};
 use crate::foxglove_episodes::FoxgloveArgs;
-use crate::trajectory_file::write_trajectories;
-use crate::trajectory_plot::{plot_trajectories, title};
+use crate::trajectories::file::write_trajectories;
+use crate::trajectories::plot::{plot_trajectories, title};
 use dribble_sim::expert::Teacher;
 
 #[derive(Debug, Args)]
@@ -397,7 +397,7 @@ fn report(args: &EvalArgs, policy: bool, played: &Played) -> anyhow::Result<()> 
     if let Some(engine) = &played.engine {
         println!("engine: {engine}");
     }
-    let (low, high) = crate::goal_rate::wilson_interval(goals.len(), results.len());
+    let (low, high) = crate::evaluation::goal_rate::wilson_interval(goals.len(), results.len());
     println!(
         "goals: {} of {} (95 % Wilson interval {low:.2}-{high:.2})",
         goals.len(),

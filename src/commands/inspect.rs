@@ -18,7 +18,7 @@ use dribble_sim::pose::FieldPose;
 use dribble_sim::visibility::{Visibility, VisibilityShares};
 use plotters::prelude::*;
 
-use crate::plot_image::{FONT, Label, draw_png};
+use crate::picture::{FONT, Label, draw_png};
 
 #[derive(Debug, Args)]
 pub struct InspectArgs {

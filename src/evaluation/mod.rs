@@ -1,0 +1,6 @@
+//! Closed-loop evaluations beyond one process: several at once (`jobs`), resumable
+//! (`journal`), and how sure a goal count is (`goal_rate`).
+
+pub mod goal_rate;
+pub mod jobs;
+pub mod journal;
