@@ -6,10 +6,13 @@
 
 mod commands;
 mod controller_session;
+mod dataset_pictures;
 mod episodes;
 mod evaluation;
 mod foxglove_episodes;
+mod gym_exchange;
 mod picture;
+mod recording;
 mod soak;
 mod trajectories;
 

@@ -16,7 +16,7 @@ use clap::{Args, Subcommand};
 use dribble_sim::dataset::{DatasetIndex, Outcome};
 use dribble_sim::runner::EpisodeResult;
 
-use crate::commands::eval::{print_header, print_row};
+use crate::evaluation::closed_loop::{print_header, print_row};
 use crate::trajectories::file::{read_trajectories, read_trajectories_engine, write_trajectories};
 use crate::trajectories::plot::{plot_trajectories, title};
 

@@ -9,20 +9,20 @@ use anyhow::{Context, bail, ensure};
 use clap::{Args, ValueEnum};
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_sim::conditions::Conditions;
-use dribble_sim::dataset::{DatasetIndex, EpisodeEntry, EpisodeRecording, episode_file};
+use dribble_sim::dataset::{DatasetIndex, EpisodeRecording};
 use dribble_sim::episode::{EpisodeSetup, reserved_range};
 use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::render::Renderer;
-use dribble_sim::runner::{
-    Driver, EpisodeConfig, EpisodeResult, ExpertLabels, run_episode_observed,
-};
-use indicatif::{ProgressBar, ProgressStyle};
+use dribble_sim::runner::{Driver, EpisodeConfig, ExpertLabels, run_episode_observed};
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
 use crate::episodes::Episodes;
 use crate::foxglove_episodes::FoxgloveArgs;
+use crate::recording::{
+    announce, configuration, episode_progress, keep_episode, open_index, report_dataset,
+};
 use dribble_sim::expert::Teacher;
 
 /// Who labels the states a learned policy visits.
@@ -36,25 +36,25 @@ pub enum Labeller {
 pub struct RecordArgs {
     /// `train` (seeds 0..99), `test` (10000..10019) or a seed range such as `0..10`.
     #[arg(long, default_value = "train")]
-    episodes: Episodes,
+    pub(crate) episodes: Episodes,
     /// Dataset directory: one `episode_SEED.npz` per episode and `dataset.json`. Episodes
     /// already there are kept and skipped, so an interrupted recording resumes.
     #[arg(long, default_value = "dataset")]
-    out: PathBuf,
+    pub(crate) out: PathBuf,
     /// Time limit per episode, simulated seconds (positive and finite).
     #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
-    time_limit: f32,
+    pub(crate) time_limit: f32,
     /// `expert` (it drives with ground truth), or the path of a policy's `policy.toml`: it
     /// drives through its controller and `--label-with` labels the states it visits.
     #[arg(long, default_value = "expert")]
-    driver: String,
+    pub(crate) driver: String,
     /// Who labels a policy-driven episode's rows (needed with a policy `--driver`).
     #[arg(long, value_enum)]
-    label_with: Option<Labeller>,
+    pub(crate) label_with: Option<Labeller>,
     /// Probability, per computed command, that the labeller's command is executed instead
     /// of the policy's (DAgger's β; drawn from a generator seeded by the episode).
     #[arg(long, default_value_t = 0.0)]
-    beta: f64,
+    pub(crate) beta: f64,
     /// Which teacher drives (with `--driver expert`) or labels (with `--label-with
     /// expert`): `paper`, the paper's expert, which reads the ball's true position; or
     /// `observable`, which knows the ball only while a camera shows it and where it last
@@ -62,16 +62,16 @@ pub struct RecordArgs {
     /// to the ball and circles it to the left until the top camera shows the target goal.
     /// Recorded in dataset.json.
     #[arg(long, default_value_t = Teacher::Paper)]
-    expert: Teacher,
+    pub(crate) expert: Teacher,
     /// What the cameras see the episodes under: `clean`, NAME:SEVERITY[,...] (see `dribble
     /// eval --help`) or `randomized` (each episode draws its own conditions from its seed,
     /// never the unseen venue). Recorded in dataset.json, per episode.
     #[arg(long, visible_alias = "conditions", default_value = "clean")]
-    condition: Conditions,
+    pub(crate) condition: Conditions,
     #[command(flatten)]
-    controller: ControllerOptions,
+    pub(crate) controller: ControllerOptions,
     #[command(flatten)]
-    foxglove: FoxgloveArgs,
+    pub(crate) foxglove: FoxgloveArgs,
 }
 
 pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
@@ -212,185 +212,6 @@ fn episodes_to_record(args: &RecordArgs, index: &DatasetIndex) -> Vec<u64> {
     todo
 }
 
-fn episode_progress(episodes: usize) -> ProgressBar {
-    let progress = ProgressBar::new(episodes as u64);
-    progress.set_style(
-        ProgressStyle::with_template(
-            "{bar:30} {pos}/{len} episodes, {elapsed} elapsed, eta {eta}  {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    progress
-}
-
-/// One line per recorded episode.
-fn announce(
-    seed: u64,
-    result: &EpisodeResult,
-    recording: &EpisodeRecording,
-    bytes: u64,
-    policy_drove: bool,
-) {
-    let executed = if policy_drove {
-        format!(
-            ", expert's command executed {} of {} times",
-            result.expert_executed,
-            recording.rows()
-        )
-    } else {
-        String::new()
-    };
-    println!(
-        "episode {seed}: {} after {:.1} s, {} rows, {:.1} MB{executed}",
-        result.outcome.name(),
-        result.duration_s,
-        recording.rows(),
-        bytes as f64 / 1e6
-    );
-}
-
-fn configuration(
-    args: &RecordArgs,
-    config: &EpisodeConfig,
-    expert_config: &ExpertConfig,
-    policy: Option<&(PathBuf, PolicyManifest)>,
-) -> anyhow::Result<(
-    serde_json::Value,
-    serde_json::Value,
-    Option<serde_json::Value>,
-)> {
-    let simulator = serde_json::json!({
-        "world": format!("{:?}", config.world),
-        "walk": format!("{:?}", config.walk),
-        "cameras": serde_json::to_value(config.cameras)?,
-        "control": format!("{:?}", config.control),
-        "time_limit_s": config.time_limit_s,
-    });
-    let expert = serde_json::json!(format!("{expert_config:?}"));
-    let driver = policy.map(|(path, manifest)| {
-        serde_json::json!({
-            "policy": path.display().to_string(),
-            "kind": manifest.kind.to_string(),
-            "trained_on": manifest.training.dataset,
-            "dataset_hash": manifest.training.dataset_hash,
-            "label_with": "expert",
-            "beta": args.beta,
-            "mixing": "per computed command, the expert's command is executed with probability \
-                       beta (held until the next computed command); draws seeded by the episode",
-        })
-    });
-    Ok((simulator, expert, driver))
-}
-
-/// Writes the episode's file and lists it in the index (saved at once, so that an
-/// interrupted recording keeps it); returns the file's size.
-fn keep_episode(
-    args: &RecordArgs,
-    index: &mut DatasetIndex,
-    seed: u64,
-    result: &EpisodeResult,
-    recording: &EpisodeRecording,
-) -> anyhow::Result<u64> {
-    let file = episode_file(seed);
-    let (bytes, sha256) = recording.write(&args.out.join(&file))?;
-    index.insert(EpisodeEntry {
-        seed,
-        file,
-        outcome: result.outcome,
-        rows: recording.rows(),
-        duration_s: f64::from(result.duration_s),
-        bytes,
-        sha256: Some(sha256),
-        conditions: (!args.condition.is_clean())
-            .then(|| args.condition.for_episode(seed).to_string()),
-    });
-    index.save(&args.out)?;
-    Ok(bytes)
-}
-
-/// The dataset's index: the one in `args.out` when its simulator, expert, driver and teacher
-/// are this run's (resuming), or a new one.
-fn open_index(
-    args: &RecordArgs,
-    simulator: serde_json::Value,
-    expert: serde_json::Value,
-    driver: Option<serde_json::Value>,
-) -> anyhow::Result<DatasetIndex> {
-    Ok(match DatasetIndex::load(&args.out)? {
-        Some(index) => {
-            // Resuming: the new episodes must come from the same simulator and expert.
-            let mut differences = Vec::new();
-            let recorded_teacher = index.teacher.as_deref().unwrap_or("paper");
-            if recorded_teacher != args.expert.name() {
-                differences.push(format!(
-                    "teacher: {recorded_teacher} there, {} now",
-                    args.expert
-                ));
-            }
-            let recorded_conditions = index.conditions.as_deref().unwrap_or("clean");
-            if recorded_conditions != args.condition.to_string() {
-                differences.push(format!(
-                    "conditions: {recorded_conditions} there, {} now",
-                    args.condition
-                ));
-            }
-            config_differences("", &index.simulator, &simulator, &mut differences);
-            config_differences("expert", &index.expert, &expert, &mut differences);
-            let recorded_driver = index.driver.clone().unwrap_or_default();
-            let driver_now = driver.clone().unwrap_or_default();
-            config_differences("driver", &recorded_driver, &driver_now, &mut differences);
-            ensure!(
-                differences.is_empty(),
-                "{} was recorded with another simulator, camera or expert configuration \
-                 ({}); record into a new directory",
-                args.out.display(),
-                differences.join("; ")
-            );
-            index
-        }
-        None => DatasetIndex {
-            format: 1,
-            project_version: env!("CARGO_PKG_VERSION").into(),
-            simulator,
-            expert,
-            episodes: Vec::new(),
-            content_hash: None,
-            driver,
-            teacher: Some(args.expert.name().into()),
-            conditions: (!args.condition.is_clean()).then(|| args.condition.to_string()),
-        },
-    })
-}
-
-/// Saves the index if this run changed it and prints what the dataset holds.
-fn report_dataset(
-    args: &RecordArgs,
-    index: &mut DatasetIndex,
-    recorded: bool,
-) -> anyhow::Result<()> {
-    let goals = index
-        .episodes
-        .iter()
-        .filter(|e| e.outcome == dribble_sim::dataset::Outcome::Goal)
-        .count();
-    // Saved only when something changed, so that a finished dataset's index keeps its time.
-    if recorded || index.content_hash != index.compute_content_hash() {
-        index.save(&args.out)?;
-    }
-    println!(
-        "{}: {} episodes, {} goals, {} rows, content hash {}",
-        args.out.join(DatasetIndex::FILE).display(),
-        index.episodes.len(),
-        goals,
-        index.episodes.iter().map(|e| e.rows).sum::<usize>(),
-        index
-            .compute_content_hash()
-            .as_deref()
-            .unwrap_or("(incomplete)")
-    );
-    Ok(())
-}
-
 /// The policy that drives, when `--driver` names one, with its manifest; checks the flags
 /// that go with it.
 fn policy_driver(args: &RecordArgs) -> anyhow::Result<Option<(PathBuf, PolicyManifest)>> {
@@ -423,39 +244,6 @@ fn policy_driver(args: &RecordArgs) -> anyhow::Result<Option<(PathBuf, PolicyMan
         args.controller.describe()
     );
     Ok(Some((path, manifest)))
-}
-
-/// Where two recorded configurations differ, one `path: recorded A, now B` per leaf.
-fn config_differences(
-    path: &str,
-    recorded: &serde_json::Value,
-    now: &serde_json::Value,
-    out: &mut Vec<String>,
-) {
-    use serde_json::Value;
-    match (recorded, now) {
-        (Value::Object(a), Value::Object(b)) => {
-            let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
-            keys.sort();
-            keys.dedup();
-            for key in keys {
-                let child = if path.is_empty() {
-                    key.clone()
-                } else {
-                    format!("{path}.{key}")
-                };
-                let missing = Value::Null;
-                config_differences(
-                    &child,
-                    a.get(key).unwrap_or(&missing),
-                    b.get(key).unwrap_or(&missing),
-                    out,
-                );
-            }
-        }
-        (a, b) if a != b => out.push(format!("{path}: recorded {a}, now {b}")),
-        _ => {}
-    }
 }
 
 #[cfg(test)]
