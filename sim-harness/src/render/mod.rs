@@ -11,7 +11,9 @@
 //! On machines without a GPU it runs on lavapipe, Mesa's Vulkan driver on the CPU
 //! (Debian's `mesa-vulkan-drivers`); its output is the same from run to run.
 
+mod pipelines;
 mod scene;
+mod target;
 
 use std::sync::mpsc;
 
@@ -24,6 +26,8 @@ use crate::camera_model::CameraModel;
 use crate::conditions::camera::CameraEffects;
 use crate::conditions::{EpisodeLook, Occluder};
 use crate::field::FieldGeometry;
+use pipelines::{Pipelines, READ_TWICE};
+use target::{CameraTarget, camera_target};
 
 pub use scene::{Mesh, Vertex, ball_mesh, static_scene, static_scene_in};
 
@@ -92,34 +96,12 @@ struct GpuMesh {
     vertices: u32,
 }
 
-/// Per camera: its uniform, multisampled and resolved targets, and the YUYV buffers.
-struct CameraTarget {
-    width: u32,
-    height: u32,
-    uniform: wgpu::Buffer,
-    camera_group: wgpu::BindGroup,
-    multisampled: wgpu::TextureView,
-    depth: wgpu::TextureView,
-    resolved: wgpu::TextureView,
-    packed: wgpu::Buffer,
-    readback: wgpu::Buffer,
-    pack_group: wgpu::BindGroup,
-    /// The resolved image in linear light, and the pass that makes it (effects only).
-    linear_group: wgpu::BindGroup,
-    effects: wgpu::Buffer,
-    effects_group: wgpu::BindGroup,
-}
-
 /// Renders both cameras; built once, used for every frame.
 pub struct Renderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
     adapter: String,
-    scene_pipeline: wgpu::RenderPipeline,
-    lit_pipeline: wgpu::RenderPipeline,
-    pack_pipeline: wgpu::ComputePipeline,
-    linear_pipeline: wgpu::ComputePipeline,
-    effects_pipeline: wgpu::ComputePipeline,
+    pipelines: Pipelines,
     field: FieldGeometry,
     goal_depth: f32,
     static_mesh: GpuMesh,
@@ -176,37 +158,7 @@ impl Renderer {
         }))
         .map_err(|error| RenderError::Device(error.to_string()))?;
 
-        let camera_layout = uniform_layout(&device, "camera", false);
-        let model_layout = uniform_layout(&device, "model", true);
-        let scene_pipeline = render_pipeline(
-            &device,
-            "scene",
-            include_str!("scene.wgsl"),
-            &[&camera_layout, &model_layout],
-        );
-        let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("light"),
-            entries: &[
-                read_twice_entry(
-                    0,
-                    wgpu::ShaderStages::FRAGMENT,
-                    size_of::<LightUniform>(),
-                    false,
-                ),
-                read_twice_entry(
-                    1,
-                    wgpu::ShaderStages::FRAGMENT,
-                    size_of::<LightUniform>(),
-                    true,
-                ),
-            ],
-        });
-        let lit_pipeline = render_pipeline(
-            &device,
-            "lit scene",
-            include_str!("scene_lit.wgsl"),
-            &[&camera_layout, &model_layout, &light_layout],
-        );
+        let (layouts, pipelines) = Pipelines::new(&device);
         let light = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("light"),
             size: size_of::<LightUniform>() as u64,
@@ -215,7 +167,7 @@ impl Renderer {
         });
         let light_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("light"),
-            layout: &light_layout,
+            layout: &layouts.light,
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
@@ -227,66 +179,6 @@ impl Renderer {
                 },
             ],
         });
-        let effects_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("effects"),
-            entries: &[
-                image_entry(),
-                packed_entry(),
-                read_twice_entry(
-                    2,
-                    wgpu::ShaderStages::COMPUTE,
-                    size_of::<CameraEffects>(),
-                    false,
-                ),
-                read_twice_entry(
-                    3,
-                    wgpu::ShaderStages::COMPUTE,
-                    size_of::<CameraEffects>(),
-                    true,
-                ),
-            ],
-        });
-        let effects_pipeline = compute_pipeline(
-            &device,
-            "camera effects",
-            include_str!("camera_effects.wgsl"),
-            "effects_main",
-            &effects_layout,
-        );
-        let linear_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("linear light"),
-            entries: &[
-                image_entry(),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::StorageTexture {
-                        access: wgpu::StorageTextureAccess::WriteOnly,
-                        format: LINEAR_FORMAT,
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                    },
-                    count: None,
-                },
-            ],
-        });
-        let linear_pipeline = compute_pipeline(
-            &device,
-            "linear light",
-            include_str!("linear_light.wgsl"),
-            "linear_main",
-            &linear_layout,
-        );
-        let pack_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("pack"),
-            entries: &[image_entry(), packed_entry()],
-        });
-        let pack_pipeline = compute_pipeline(
-            &device,
-            "yuyv",
-            include_str!("yuyv.wgsl"),
-            "pack_main",
-            &pack_layout,
-        );
 
         let static_mesh = upload(&device, "static scene", &static_scene(field, goal_depth));
         let ball_mesh = upload(&device, "ball", &ball_mesh(field.ball_diameter / 2.0));
@@ -303,7 +195,7 @@ impl Renderer {
         );
         let model_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("models"),
-            layout: &model_layout,
+            layout: &layouts.model,
             entries: &[wgpu::BindGroupEntry {
                 binding: 0,
                 resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
@@ -315,23 +207,13 @@ impl Renderer {
         });
         let targets = [CameraPosition::Top, CameraPosition::Bottom].map(|camera| {
             let mount = cameras.mount(camera);
-            camera_target(
-                &device,
-                &camera_layout,
-                [&pack_layout, &linear_layout, &effects_layout],
-                mount.width,
-                mount.height,
-            )
+            camera_target(&device, &layouts, mount.width, mount.height)
         });
         Ok(Self {
             device,
             queue,
             adapter: adapter_name,
-            scene_pipeline,
-            lit_pipeline,
-            pack_pipeline,
-            linear_pipeline,
-            effects_pipeline,
+            pipelines,
             field: *field,
             goal_depth,
             static_mesh,
@@ -415,6 +297,22 @@ impl Renderer {
                 found_height: H as u32,
             });
         }
+        let (lit, effects) = self.write_frame_state(position, camera, scene);
+        let commands = self.encode_frame(position, lit, scene.ball.is_some(), effects);
+        self.queue.submit([commands]);
+        self.read_back(position, frame)
+    }
+
+    /// Writes what this frame's passes read: the camera's matrix, the ball's, the ball's
+    /// shadow caster (lit scenes) and the camera's effects (when the episode has any). Returns
+    /// whether the scene is lit and whether the effects pass runs.
+    fn write_frame_state(
+        &mut self,
+        position: CameraPosition,
+        camera: &CameraModel,
+        scene: &SceneState,
+    ) -> (bool, bool) {
+        let target = &self.targets[position.index()];
         self.queue.write_buffer(
             &target.uniform,
             0,
@@ -462,6 +360,19 @@ impl Renderer {
             self.queue
                 .write_buffer(&target.effects, 0, bytemuck::bytes_of(effects));
         }
+        (lit, effects.is_some())
+    }
+
+    /// The frame's commands: the scene drawn and resolved, then packed into YUYV (through the
+    /// linear image and the effects when they run), and copied for read-back.
+    fn encode_frame(
+        &self,
+        position: CameraPosition,
+        lit: bool,
+        ball: bool,
+        effects: bool,
+    ) -> wgpu::CommandBuffer {
+        let target = &self.targets[position.index()];
         let [r, g, b] = self.look.layout.sky;
         let sky = wgpu::Color { r, g, b, a: 1.0 };
         let mut encoder = self
@@ -492,27 +403,27 @@ impl Renderer {
                 ..Default::default()
             });
             if lit {
-                pass.set_pipeline(&self.lit_pipeline);
+                pass.set_pipeline(&self.pipelines.lit);
                 pass.set_bind_group(2, &self.light_group, &[]);
             } else {
-                pass.set_pipeline(&self.scene_pipeline);
+                pass.set_pipeline(&self.pipelines.scene);
             }
             pass.set_bind_group(0, &target.camera_group, &[]);
             pass.set_bind_group(1, &self.model_group, &[0]);
             pass.set_vertex_buffer(0, self.static_mesh.buffer.slice(..));
             pass.draw(0..self.static_mesh.vertices, 0..1);
-            if scene.ball.is_some() {
+            if ball {
                 pass.set_bind_group(1, &self.model_group, &[UNIFORM_STRIDE as u32]);
                 pass.set_vertex_buffer(0, self.ball_mesh.buffer.slice(..));
                 pass.draw(0..self.ball_mesh.vertices, 0..1);
             }
         }
-        if effects.is_some() {
+        if effects {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("linear light"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.linear_pipeline);
+            pass.set_pipeline(&self.pipelines.linear);
             pass.set_bind_group(0, &target.linear_group, &[]);
             pass.dispatch_workgroups(target.width.div_ceil(8), target.height.div_ceil(8), 1);
         }
@@ -521,18 +432,26 @@ impl Renderer {
                 label: Some("pack yuyv"),
                 timestamp_writes: None,
             });
-            if effects.is_some() {
-                pass.set_pipeline(&self.effects_pipeline);
+            if effects {
+                pass.set_pipeline(&self.pipelines.effects);
                 pass.set_bind_group(0, &target.effects_group, &[]);
             } else {
-                pass.set_pipeline(&self.pack_pipeline);
+                pass.set_pipeline(&self.pipelines.pack);
                 pass.set_bind_group(0, &target.pack_group, &[]);
             }
             pass.dispatch_workgroups((target.width / 2).div_ceil(8), target.height.div_ceil(8), 1);
         }
         encoder.copy_buffer_to_buffer(&target.packed, 0, &target.readback, 0, target.packed.size());
-        self.queue.submit([encoder.finish()]);
+        encoder.finish()
+    }
 
+    /// Waits for the frame's commands and copies the YUYV bytes into `frame`.
+    fn read_back<const W: usize, const H: usize>(
+        &self,
+        position: CameraPosition,
+        frame: &mut CameraFrame<W, H>,
+    ) -> Result<(), RenderError> {
+        let target = &self.targets[position.index()];
         let slice = target.readback.slice(..);
         let (sender, receiver) = mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |result| {
@@ -556,162 +475,6 @@ impl Renderer {
     }
 }
 
-fn uniform_layout(device: &wgpu::Device, label: &str, dynamic: bool) -> wgpu::BindGroupLayout {
-    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some(label),
-        entries: &[wgpu::BindGroupLayoutEntry {
-            binding: 0,
-            visibility: wgpu::ShaderStages::VERTEX,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: dynamic,
-                min_binding_size: wgpu::BufferSize::new(64),
-            },
-            count: None,
-        }],
-    })
-}
-
-fn render_pipeline(
-    device: &wgpu::Device,
-    label: &str,
-    source: &str,
-    layouts: &[&wgpu::BindGroupLayout],
-) -> wgpu::RenderPipeline {
-    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(|l| Some(*l)).collect();
-    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some(label),
-        bind_group_layouts: &layouts,
-        ..Default::default()
-    });
-    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some(label),
-        layout: Some(&layout),
-        vertex: wgpu::VertexState {
-            module: &shader,
-            entry_point: Some("vertex_main"),
-            compilation_options: Default::default(),
-            buffers: &[Some(wgpu::VertexBufferLayout {
-                array_stride: size_of::<Vertex>() as u64,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3],
-            })],
-        },
-        primitive: wgpu::PrimitiveState {
-            cull_mode: None,
-            ..Default::default()
-        },
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: DEPTH_FORMAT,
-            depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::LessEqual),
-            stencil: Default::default(),
-            bias: Default::default(),
-        }),
-        multisample: wgpu::MultisampleState {
-            count: SAMPLES,
-            ..Default::default()
-        },
-        fragment: Some(wgpu::FragmentState {
-            module: &shader,
-            entry_point: Some("fragment_main"),
-            compilation_options: Default::default(),
-            targets: &[Some(COLOUR_FORMAT.into())],
-        }),
-        multiview_mask: None,
-        cache: None,
-    })
-}
-
-fn compute_pipeline(
-    device: &wgpu::Device,
-    label: &str,
-    source: &str,
-    entry_point: &str,
-    layout: &wgpu::BindGroupLayout,
-) -> wgpu::ComputePipeline {
-    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some(label),
-        bind_group_layouts: &[Some(layout)],
-        ..Default::default()
-    });
-    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(label),
-        layout: Some(&pipeline_layout),
-        module: &shader,
-        entry_point: Some(entry_point),
-        compilation_options: Default::default(),
-        cache: None,
-    })
-}
-
-/// How the light and effects buffers are used: each is bound twice, as a uniform buffer
-/// for the arithmetic and as a read-only storage buffer for what decides control flow (see
-/// `scene_lit.wgsl`: lavapipe loads a uniform value once a group, but keeps a shader variant
-/// per distinct uniform value its branches and loops read).
-const READ_TWICE: wgpu::BufferUsages = wgpu::BufferUsages::UNIFORM
-    .union(wgpu::BufferUsages::STORAGE)
-    .union(wgpu::BufferUsages::COPY_DST);
-
-/// One of the two bindings of a [`READ_TWICE`] buffer of `size` bytes.
-fn read_twice_entry(
-    binding: u32,
-    visibility: wgpu::ShaderStages,
-    size: usize,
-    storage: bool,
-) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility,
-        ty: wgpu::BindingType::Buffer {
-            ty: if storage {
-                wgpu::BufferBindingType::Storage { read_only: true }
-            } else {
-                wgpu::BufferBindingType::Uniform
-            },
-            has_dynamic_offset: false,
-            min_binding_size: wgpu::BufferSize::new(size as u64),
-        },
-        count: None,
-    }
-}
-
-/// The resolved image a compute pass reads (binding 0).
-fn image_entry() -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding: 0,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Float { filterable: false },
-            view_dimension: wgpu::TextureViewDimension::D2,
-            multisampled: false,
-        },
-        count: None,
-    }
-}
-
-/// The YUYV buffer a compute pass writes (binding 1).
-fn packed_entry() -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding: 1,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only: false },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
 fn upload(device: &wgpu::Device, label: &str, mesh: &Mesh) -> GpuMesh {
     GpuMesh {
         buffer: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -720,155 +483,5 @@ fn upload(device: &wgpu::Device, label: &str, mesh: &Mesh) -> GpuMesh {
             usage: wgpu::BufferUsages::VERTEX,
         }),
         vertices: mesh.vertices.len() as u32,
-    }
-}
-
-fn camera_target(
-    device: &wgpu::Device,
-    camera_layout: &wgpu::BindGroupLayout,
-    [pack_layout, linear_layout, effects_layout]: [&wgpu::BindGroupLayout; 3],
-    width: u32,
-    height: u32,
-) -> CameraTarget {
-    let size = wgpu::Extent3d {
-        width,
-        height,
-        depth_or_array_layers: 1,
-    };
-    let texture = |label: &str, format, samples, usage| {
-        device
-            .create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size,
-                mip_level_count: 1,
-                sample_count: samples,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage,
-                view_formats: &[],
-            })
-            .create_view(&Default::default())
-    };
-    let multisampled = texture(
-        "multisampled",
-        COLOUR_FORMAT,
-        SAMPLES,
-        wgpu::TextureUsages::RENDER_ATTACHMENT,
-    );
-    let depth = texture(
-        "depth",
-        DEPTH_FORMAT,
-        SAMPLES,
-        wgpu::TextureUsages::RENDER_ATTACHMENT,
-    );
-    let resolved = texture(
-        "resolved",
-        COLOUR_FORMAT,
-        1,
-        wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
-    );
-    let linear = texture(
-        "linear light",
-        LINEAR_FORMAT,
-        1,
-        wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
-    );
-    let linear_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("linear light"),
-        layout: linear_layout,
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::TextureView(&resolved),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: wgpu::BindingResource::TextureView(&linear),
-            },
-        ],
-    });
-    let bytes = u64::from(width) * u64::from(height) * 2;
-    let packed = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("yuyv"),
-        size: bytes,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let readback = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("yuyv readback"),
-        size: bytes,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let uniform = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("camera"),
-        size: 64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let camera_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("camera"),
-        layout: camera_layout,
-        entries: &[wgpu::BindGroupEntry {
-            binding: 0,
-            resource: uniform.as_entire_binding(),
-        }],
-    });
-    let pack_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("pack"),
-        layout: pack_layout,
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::TextureView(&resolved),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: packed.as_entire_binding(),
-            },
-        ],
-    });
-    let effects = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("camera effects"),
-        size: size_of::<CameraEffects>() as u64,
-        usage: READ_TWICE,
-        mapped_at_creation: false,
-    });
-    let effects_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("camera effects"),
-        layout: effects_layout,
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::TextureView(&linear),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: packed.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: effects.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 3,
-                resource: effects.as_entire_binding(),
-            },
-        ],
-    });
-    CameraTarget {
-        width,
-        height,
-        effects,
-        effects_group,
-        uniform,
-        camera_group,
-        multisampled,
-        depth,
-        resolved,
-        packed,
-        readback,
-        pack_group,
-        linear_group,
     }
 }

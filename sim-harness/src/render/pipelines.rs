@@ -1,0 +1,306 @@
+//! The pipelines of a frame and the bind group layouts they share with the cameras'
+//! targets: the flat and the lit scene (render), YUYV packing, linear light and the camera
+//! effects (compute); and the helpers that describe them.
+
+use super::{
+    COLOUR_FORMAT, CameraEffects, DEPTH_FORMAT, LINEAR_FORMAT, LightUniform, SAMPLES, Vertex,
+};
+
+/// The bind group layouts of the pipelines, which the targets' and the renderer's bind
+/// groups are made with.
+pub(super) struct Layouts {
+    pub(super) camera: wgpu::BindGroupLayout,
+    pub(super) model: wgpu::BindGroupLayout,
+    pub(super) light: wgpu::BindGroupLayout,
+    pub(super) pack: wgpu::BindGroupLayout,
+    pub(super) linear: wgpu::BindGroupLayout,
+    pub(super) effects: wgpu::BindGroupLayout,
+}
+
+/// Every pipeline a frame may use.
+pub(super) struct Pipelines {
+    /// The clean scene: flat colours, soft light (`scene.wgsl`).
+    pub(super) scene: wgpu::RenderPipeline,
+    /// The scene under a directional light with shadows and bright spots (`scene_lit.wgsl`).
+    pub(super) lit: wgpu::RenderPipeline,
+    /// The resolved image packed into YUYV (`yuyv.wgsl`).
+    pub(super) pack: wgpu::ComputePipeline,
+    /// The resolved image in linear light, for the effects (`linear_light.wgsl`).
+    pub(super) linear: wgpu::ComputePipeline,
+    /// The camera's effects, then YUYV (`camera_effects.wgsl`).
+    pub(super) effects: wgpu::ComputePipeline,
+}
+
+impl Pipelines {
+    /// Compiles every pipeline of a frame on `device`.
+    pub(super) fn new(device: &wgpu::Device) -> (Layouts, Self) {
+        let camera_layout = uniform_layout(device, "camera", false);
+        let model_layout = uniform_layout(device, "model", true);
+        let scene_pipeline = render_pipeline(
+            device,
+            "scene",
+            include_str!("scene.wgsl"),
+            &[&camera_layout, &model_layout],
+        );
+        let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("light"),
+            entries: &[
+                read_twice_entry(
+                    0,
+                    wgpu::ShaderStages::FRAGMENT,
+                    size_of::<LightUniform>(),
+                    false,
+                ),
+                read_twice_entry(
+                    1,
+                    wgpu::ShaderStages::FRAGMENT,
+                    size_of::<LightUniform>(),
+                    true,
+                ),
+            ],
+        });
+        let lit_pipeline = render_pipeline(
+            device,
+            "lit scene",
+            include_str!("scene_lit.wgsl"),
+            &[&camera_layout, &model_layout, &light_layout],
+        );
+        let effects_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("effects"),
+            entries: &[
+                image_entry(),
+                packed_entry(),
+                read_twice_entry(
+                    2,
+                    wgpu::ShaderStages::COMPUTE,
+                    size_of::<CameraEffects>(),
+                    false,
+                ),
+                read_twice_entry(
+                    3,
+                    wgpu::ShaderStages::COMPUTE,
+                    size_of::<CameraEffects>(),
+                    true,
+                ),
+            ],
+        });
+        let effects_pipeline = compute_pipeline(
+            device,
+            "camera effects",
+            include_str!("camera_effects.wgsl"),
+            "effects_main",
+            &effects_layout,
+        );
+        let linear_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("linear light"),
+            entries: &[
+                image_entry(),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: LINEAR_FORMAT,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let linear_pipeline = compute_pipeline(
+            device,
+            "linear light",
+            include_str!("linear_light.wgsl"),
+            "linear_main",
+            &linear_layout,
+        );
+        let pack_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("pack"),
+            entries: &[image_entry(), packed_entry()],
+        });
+        let pack_pipeline = compute_pipeline(
+            device,
+            "yuyv",
+            include_str!("yuyv.wgsl"),
+            "pack_main",
+            &pack_layout,
+        );
+
+        let layouts = Layouts {
+            camera: camera_layout,
+            model: model_layout,
+            light: light_layout,
+            pack: pack_layout,
+            linear: linear_layout,
+            effects: effects_layout,
+        };
+        let pipelines = Self {
+            scene: scene_pipeline,
+            lit: lit_pipeline,
+            pack: pack_pipeline,
+            linear: linear_pipeline,
+            effects: effects_pipeline,
+        };
+        (layouts, pipelines)
+    }
+}
+
+pub(super) fn uniform_layout(
+    device: &wgpu::Device,
+    label: &str,
+    dynamic: bool,
+) -> wgpu::BindGroupLayout {
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(label),
+        entries: &[wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: dynamic,
+                min_binding_size: wgpu::BufferSize::new(64),
+            },
+            count: None,
+        }],
+    })
+}
+
+pub(super) fn render_pipeline(
+    device: &wgpu::Device,
+    label: &str,
+    source: &str,
+    layouts: &[&wgpu::BindGroupLayout],
+) -> wgpu::RenderPipeline {
+    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(|l| Some(*l)).collect();
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: &layouts,
+        ..Default::default()
+    });
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(label),
+        layout: Some(&layout),
+        vertex: wgpu::VertexState {
+            module: &shader,
+            entry_point: Some("vertex_main"),
+            compilation_options: Default::default(),
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: size_of::<Vertex>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3],
+            })],
+        },
+        primitive: wgpu::PrimitiveState {
+            cull_mode: None,
+            ..Default::default()
+        },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH_FORMAT,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::LessEqual),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: wgpu::MultisampleState {
+            count: SAMPLES,
+            ..Default::default()
+        },
+        fragment: Some(wgpu::FragmentState {
+            module: &shader,
+            entry_point: Some("fragment_main"),
+            compilation_options: Default::default(),
+            targets: &[Some(COLOUR_FORMAT.into())],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+pub(super) fn compute_pipeline(
+    device: &wgpu::Device,
+    label: &str,
+    source: &str,
+    entry_point: &str,
+    layout: &wgpu::BindGroupLayout,
+) -> wgpu::ComputePipeline {
+    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: &[Some(layout)],
+        ..Default::default()
+    });
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout: Some(&pipeline_layout),
+        module: &shader,
+        entry_point: Some(entry_point),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
+
+/// How the light and effects buffers are used: each is bound twice, as a uniform buffer
+/// for the arithmetic and as a read-only storage buffer for what decides control flow (see
+/// `scene_lit.wgsl`: lavapipe loads a uniform value once a group, but keeps a shader variant
+/// per distinct uniform value its branches and loops read).
+pub(super) const READ_TWICE: wgpu::BufferUsages = wgpu::BufferUsages::UNIFORM
+    .union(wgpu::BufferUsages::STORAGE)
+    .union(wgpu::BufferUsages::COPY_DST);
+
+/// One of the two bindings of a [`READ_TWICE`] buffer of `size` bytes.
+pub(super) fn read_twice_entry(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+    size: usize,
+    storage: bool,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: if storage {
+                wgpu::BufferBindingType::Storage { read_only: true }
+            } else {
+                wgpu::BufferBindingType::Uniform
+            },
+            has_dynamic_offset: false,
+            min_binding_size: wgpu::BufferSize::new(size as u64),
+        },
+        count: None,
+    }
+}
+
+/// The resolved image a compute pass reads (binding 0).
+pub(super) fn image_entry() -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding: 0,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+/// The YUYV buffer a compute pass writes (binding 1).
+pub(super) fn packed_entry() -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding: 1,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: false },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
