@@ -213,7 +213,7 @@ pub fn run_episode_observed(
     config: &EpisodeConfig,
     driver: Driver<'_>,
     mut renderer: Option<&mut Renderer>,
-    mut recording: Option<&mut EpisodeRecording>,
+    recording: Option<&mut EpisodeRecording>,
     observer: &mut dyn EpisodeObserver,
 ) -> Result<EpisodeResult, RenderError> {
     observer.start(setup);
@@ -221,31 +221,28 @@ pub fn run_episode_observed(
     if let Some(renderer) = renderer.as_deref_mut() {
         renderer.begin_episode(&look);
     }
-    let truth = |simulation: &Simulation| GroundTruth {
-        robot: simulation.world().robot_pose(),
-        ball: simulation.world().ball().position.truncate(),
-        target_side: setup.target_side,
-        time_s: simulation.time().as_nanos() as f64 / 1e9,
-    };
-    let mut simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
-    let channel = Rc::new(RefCell::new(ExpertChannel {
-        truth: truth(&simulation),
-        phase: Phase::Search,
-    }));
-    let (is_expert, policy): (bool, Box<dyn Policy + '_>) = match driver {
+    let simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
+    match driver {
         Driver::Expert(mut expert) => {
             expert.see_among(&look);
-            (
-                true,
-                Box::new(ExpertPolicy {
-                    expert,
-                    channel: Rc::clone(&channel),
-                }),
-            )
+            let channel = Rc::new(RefCell::new(ExpertChannel {
+                truth: ground_truth(&simulation, setup),
+                phase: Phase::Search,
+            }));
+            let policy = ExpertPolicy {
+                expert,
+                channel: Rc::clone(&channel),
+            };
+            let cycles = InProcess::new(config, Box::new(policy), Some(channel), recording);
+            play(setup, config, simulation, cycles, renderer, observer)
         }
-        Driver::Policy(policy) => (false, Box::new(policy)),
+        Driver::Policy(policy) => {
+            let cycles = InProcess::new(config, Box::new(policy), None, recording);
+            play(setup, config, simulation, cycles, renderer, observer)
+        }
         Driver::Controller(link) => {
-            return run_linked(setup, config, link, None, renderer, observer);
+            let cycles = Linked::new(config, link, None);
+            play(setup, config, simulation, cycles, renderer, observer)
         }
         Driver::LabelledController(link, mut labels) => {
             labels.expert.see_among(&look);
@@ -258,20 +255,70 @@ pub fn run_episode_observed(
                     Box::new(BottomThumbnail::black()),
                 ),
             };
-            return run_linked(setup, config, link, Some(labelling), renderer, observer);
+            let cycles = Linked::new(config, link, Some(labelling));
+            play(setup, config, simulation, cycles, renderer, observer)
         }
-    };
-    let clock = ManualClock::default();
-    let mut control = ControlLoop::new(config.control, policy, clock.clone());
-    control.reset_episode();
+    }
+}
 
+/// What the robot and the ball are at this instant, as the expert reads it.
+fn ground_truth(simulation: &Simulation, setup: &EpisodeSetup) -> GroundTruth {
+    GroundTruth {
+        robot: simulation.world().robot_pose(),
+        ball: simulation.world().ball().position.truncate(),
+        target_side: setup.target_side,
+        time_s: simulation.time().as_nanos() as f64 / 1e9,
+    }
+}
+
+/// What a motion cycle gave: the controller's command, and what the walk executes (or why
+/// the episode cannot go on).
+struct Cycle {
+    command: MotionCommand,
+    execute: Result<SpeedCommand, String>,
+}
+
+/// What computes an episode's commands: the controller's loop in this process
+/// ([`InProcess`]) or a controller behind a link ([`Linked`]). Both see every frame as a
+/// camera takes it and answer every motion cycle.
+trait MotionCycles {
+    /// A camera took a frame; `top` and `bottom` hold the newest of each.
+    fn frame(
+        &mut self,
+        camera: CameraPosition,
+        top: &TopFrame,
+        bottom: &BottomFrame,
+    ) -> Result<(), String>;
+
+    /// The motion cycle at the simulation's time: its command, or why none came.
+    fn cycle(
+        &mut self,
+        simulation: &Simulation,
+        setup: &EpisodeSetup,
+        frames: (&TopFrame, &BottomFrame),
+    ) -> Result<Cycle, String>;
+
+    /// Computed commands, their tick times and the commands the expert's replaced.
+    fn finish(self) -> (u64, TickStats, u64);
+}
+
+/// The one episode loop: physics steps, frames as the cameras take them, a command every
+/// motion cycle, until a goal, the ball out, the time limit or a lost controller.
+fn play(
+    setup: &EpisodeSetup,
+    config: &EpisodeConfig,
+    mut simulation: Simulation,
+    mut cycles: impl MotionCycles,
+    mut renderer: Option<&mut Renderer>,
+    observer: &mut dyn EpisodeObserver,
+) -> Result<EpisodeResult, RenderError> {
     let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
-    let (mut top_new, mut bottom_new) = (false, false);
     let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
-    let mut tick_times = TickStats::new(config.control.budget);
     let mut trace = Trace::new(setup, config.cameras);
+    let mut failure = None;
     let outcome = loop {
-        if let Some(camera) = simulation.step() {
+        let camera = simulation.step();
+        if let Some(camera) = camera {
             take_frame(
                 &simulation,
                 camera,
@@ -279,51 +326,41 @@ pub fn run_episode_observed(
                 &mut top,
                 &mut bottom,
             )?;
-            match camera {
-                CameraPosition::Top => top_new = true,
-                CameraPosition::Bottom => bottom_new = true,
-            }
             observer.frame(simulation.time(), camera, &top, &bottom);
         }
         trace.after_step(&simulation);
-        if simulation
+        let motion_cycle = simulation
             .world()
             .steps()
-            .is_multiple_of(STEPS_PER_MOTION_CYCLE)
+            .is_multiple_of(STEPS_PER_MOTION_CYCLE);
+        if motion_cycle {
+            observer.before_tick(
+                simulation.time(),
+                simulation.world().robot_pose(),
+                simulation.world().ball().position.truncate(),
+            );
+        }
+        if let Some(camera) = camera
+            && let Err(error) = cycles.frame(camera, &top, &bottom)
         {
-            clock.set(simulation.time());
-            let now = truth(&simulation);
-            observer.before_tick(simulation.time(), now.robot, now.ball);
-            channel.borrow_mut().truth = now;
-            let input = CameraInput {
-                top: top_new.then_some(&*top),
-                bottom: bottom_new.then_some(&*bottom),
-            };
-            (top_new, bottom_new) = (false, false);
-            let started = Instant::now();
-            let command = control.tick(input);
-            let elapsed = started.elapsed();
-            simulation.set_command(command.speed);
-            observe_cycle(observer, &simulation, &command);
-            if command.is_new() {
-                tick_times.record(elapsed);
-                if let Some(recording) = recording.as_deref_mut() {
-                    let (top_thumbnail, bottom_thumbnail) = control.thumbnails();
-                    let truth = channel.borrow().truth;
-                    recording.push(Row {
-                        top: top_thumbnail,
-                        bottom: bottom_thumbnail,
-                        command: command.speed,
-                        robot: truth.robot,
-                        ball: truth.ball,
-                        time_s: control.clock().now().as_nanos() as f64 / 1e9,
-                        phase: if is_expert {
-                            channel.borrow().phase
-                        } else {
-                            Phase::Search
-                        },
-                        policy_command: None,
-                    });
+            failure = Some(error);
+            break Outcome::ControllerLost;
+        }
+        if motion_cycle {
+            match cycles.cycle(&simulation, setup, (&top, &bottom)) {
+                Ok(Cycle { command, execute }) => {
+                    observe_cycle(observer, &simulation, &command);
+                    match execute {
+                        Ok(speed) => simulation.set_command(speed),
+                        Err(error) => {
+                            failure = Some(error);
+                            break Outcome::ControllerLost;
+                        }
+                    }
+                }
+                Err(error) => {
+                    failure = Some(error);
+                    break Outcome::ControllerLost;
                 }
             }
         }
@@ -332,14 +369,198 @@ pub fn run_episode_observed(
         }
     };
     observer.end(simulation.time(), outcome);
+    let (computed_commands, tick_times, expert_executed) = cycles.finish();
     let end = Ending {
         outcome,
-        computed_commands: control.counters().new_commands,
+        computed_commands,
         tick_times,
-        failure: None,
-        expert_executed: 0,
+        failure,
+        expert_executed,
     };
     Ok(trace.finish(&simulation, setup, end))
+}
+
+/// The controller's loop in this process, on the simulation's clock, driving with the
+/// expert or a policy; rows recorded when a recording is given.
+struct InProcess<'p, 'r> {
+    control: ControlLoop<Box<dyn Policy + 'p>, ManualClock>,
+    clock: ManualClock,
+    /// The expert's truth and phase, when the expert drives.
+    expert: Option<Rc<RefCell<ExpertChannel>>>,
+    recording: Option<&'r mut EpisodeRecording>,
+    new_frames: (bool, bool),
+    tick_times: TickStats,
+}
+
+impl<'p, 'r> InProcess<'p, 'r> {
+    fn new(
+        config: &EpisodeConfig,
+        policy: Box<dyn Policy + 'p>,
+        expert: Option<Rc<RefCell<ExpertChannel>>>,
+        recording: Option<&'r mut EpisodeRecording>,
+    ) -> Self {
+        let clock = ManualClock::default();
+        let mut control = ControlLoop::new(config.control, policy, clock.clone());
+        control.reset_episode();
+        Self {
+            control,
+            clock,
+            expert,
+            recording,
+            new_frames: (false, false),
+            tick_times: TickStats::new(config.control.budget),
+        }
+    }
+}
+
+impl MotionCycles for InProcess<'_, '_> {
+    fn frame(
+        &mut self,
+        camera: CameraPosition,
+        _: &TopFrame,
+        _: &BottomFrame,
+    ) -> Result<(), String> {
+        match camera {
+            CameraPosition::Top => self.new_frames.0 = true,
+            CameraPosition::Bottom => self.new_frames.1 = true,
+        }
+        Ok(())
+    }
+
+    fn cycle(
+        &mut self,
+        simulation: &Simulation,
+        setup: &EpisodeSetup,
+        (top, bottom): (&TopFrame, &BottomFrame),
+    ) -> Result<Cycle, String> {
+        self.clock.set(simulation.time());
+        let truth = ground_truth(simulation, setup);
+        if let Some(expert) = &self.expert {
+            expert.borrow_mut().truth = truth;
+        }
+        let input = CameraInput {
+            top: self.new_frames.0.then_some(top),
+            bottom: self.new_frames.1.then_some(bottom),
+        };
+        self.new_frames = (false, false);
+        let started = Instant::now();
+        let command = self.control.tick(input);
+        let elapsed = started.elapsed();
+        if command.is_new() {
+            self.tick_times.record(elapsed);
+            if let Some(recording) = self.recording.as_deref_mut() {
+                let (top_thumbnail, bottom_thumbnail) = self.control.thumbnails();
+                recording.push(Row {
+                    top: top_thumbnail,
+                    bottom: bottom_thumbnail,
+                    command: command.speed,
+                    robot: truth.robot,
+                    ball: truth.ball,
+                    time_s: self.control.clock().now().as_nanos() as f64 / 1e9,
+                    phase: self
+                        .expert
+                        .as_ref()
+                        .map_or(Phase::Search, |expert| expert.borrow().phase),
+                    policy_command: None,
+                });
+            }
+        }
+        Ok(Cycle {
+            command,
+            execute: Ok(command.speed),
+        })
+    }
+
+    fn finish(self) -> (u64, TickStats, u64) {
+        (self.control.counters().new_commands, self.tick_times, 0)
+    }
+}
+
+/// A controller behind a link: frames go out as the cameras take them, a tick every motion
+/// cycle, its command back; followed by the expert when labelled.
+struct Linked<'l, 'r> {
+    link: &'l mut dyn ControllerLink,
+    labelling: Option<Labelling<'r>>,
+    index: u64,
+    computed_commands: u64,
+    expert_executed: u64,
+    tick_times: TickStats,
+}
+
+impl<'l, 'r> Linked<'l, 'r> {
+    fn new(
+        config: &EpisodeConfig,
+        link: &'l mut dyn ControllerLink,
+        labelling: Option<Labelling<'r>>,
+    ) -> Self {
+        Self {
+            link,
+            labelling,
+            index: 0,
+            computed_commands: 0,
+            expert_executed: 0,
+            tick_times: TickStats::new(config.control.budget),
+        }
+    }
+}
+
+impl MotionCycles for Linked<'_, '_> {
+    fn frame(
+        &mut self,
+        camera: CameraPosition,
+        top: &TopFrame,
+        bottom: &BottomFrame,
+    ) -> Result<(), String> {
+        match camera {
+            CameraPosition::Top => self.link.publish_top(top),
+            CameraPosition::Bottom => self.link.publish_bottom(bottom),
+        }
+        .map_err(|error: LinkError| error.to_string())
+    }
+
+    fn cycle(
+        &mut self,
+        simulation: &Simulation,
+        setup: &EpisodeSetup,
+        frames: (&TopFrame, &BottomFrame),
+    ) -> Result<Cycle, String> {
+        let tick = LockStepTick {
+            episode: setup.seed,
+            index: self.index,
+            time_ns: simulation.time().as_nanos(),
+        };
+        self.index += 1;
+        let started = Instant::now();
+        let command = self
+            .link
+            .exchange(&tick)
+            .map_err(|error| error.to_string())?;
+        if command.is_new() {
+            self.tick_times.record(started.elapsed());
+            self.computed_commands += 1;
+        }
+        let execute = match self.labelling.as_mut() {
+            None => Ok(command.speed),
+            Some(labelling) => {
+                let truth = ground_truth(simulation, setup);
+                labelling
+                    .follow(&command, truth, truth.time_s, frames)
+                    .map(|(speed, executed)| {
+                        self.expert_executed += u64::from(executed);
+                        speed
+                    })
+            }
+        };
+        Ok(Cycle { command, execute })
+    }
+
+    fn finish(self) -> (u64, TickStats, u64) {
+        (
+            self.computed_commands,
+            self.tick_times,
+            self.expert_executed,
+        )
+    }
 }
 
 /// Shows `observer` a motion cycle: the command the motion module got, and the state.
@@ -571,128 +792,4 @@ impl Labelling<'_> {
         }
         Ok((if executed { expert } else { command.speed }, executed))
     }
-}
-
-/// An episode driven by a controller behind a link: frames go out as the cameras take
-/// them, a tick goes out every motion cycle, and the command that answers it drives the
-/// walk. A link that fails (the controller died or stopped answering) ends the episode as
-/// [`Outcome::ControllerLost`].
-fn run_linked(
-    setup: &EpisodeSetup,
-    config: &EpisodeConfig,
-    link: &mut dyn ControllerLink,
-    mut labelling: Option<Labelling<'_>>,
-    mut renderer: Option<&mut Renderer>,
-    observer: &mut dyn EpisodeObserver,
-) -> Result<EpisodeResult, RenderError> {
-    let mut simulation = Simulation::new(setup, config.world, config.walk, config.cameras);
-    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
-    let limit_steps = (config.time_limit_s * STEPS_PER_SECOND as f32).round() as u64;
-    let mut tick_times = TickStats::new(config.control.budget);
-    let mut trace = Trace::new(setup, config.cameras);
-    let mut computed_commands = 0;
-    let mut expert_executed = 0;
-    let mut failure = None;
-    let mut index = 0;
-    let mut exchange = |simulation: &Simulation,
-                        camera: Option<CameraPosition>,
-                        top: &TopFrame,
-                        bottom: &BottomFrame|
-     -> Result<Option<MotionCommand>, LinkError> {
-        match camera {
-            Some(CameraPosition::Top) => link.publish_top(top)?,
-            Some(CameraPosition::Bottom) => link.publish_bottom(bottom)?,
-            None => {}
-        }
-        if !simulation
-            .world()
-            .steps()
-            .is_multiple_of(STEPS_PER_MOTION_CYCLE)
-        {
-            return Ok(None);
-        }
-        let tick = LockStepTick {
-            episode: setup.seed,
-            index,
-            time_ns: simulation.time().as_nanos(),
-        };
-        index += 1;
-        let started = Instant::now();
-        let command = link.exchange(&tick)?;
-        if command.is_new() {
-            tick_times.record(started.elapsed());
-            computed_commands += 1;
-        }
-        Ok(Some(command))
-    };
-    let outcome = loop {
-        let camera = simulation.step();
-        if let Some(camera) = camera {
-            take_frame(
-                &simulation,
-                camera,
-                renderer.as_deref_mut(),
-                &mut top,
-                &mut bottom,
-            )?;
-            observer.frame(simulation.time(), camera, &top, &bottom);
-        }
-        trace.after_step(&simulation);
-        if simulation
-            .world()
-            .steps()
-            .is_multiple_of(STEPS_PER_MOTION_CYCLE)
-        {
-            observer.before_tick(
-                simulation.time(),
-                simulation.world().robot_pose(),
-                simulation.world().ball().position.truncate(),
-            );
-        }
-        let exchanged = exchange(&simulation, camera, &top, &bottom);
-        if let Ok(Some(command)) = &exchanged {
-            observe_cycle(observer, &simulation, command);
-        }
-        match exchanged {
-            Ok(Some(command)) => match labelling.as_mut() {
-                None => simulation.set_command(command.speed),
-                Some(labelling) => {
-                    let time_s = simulation.time().as_nanos() as f64 / 1e9;
-                    let truth = GroundTruth {
-                        robot: simulation.world().robot_pose(),
-                        ball: simulation.world().ball().position.truncate(),
-                        target_side: setup.target_side,
-                        time_s,
-                    };
-                    match labelling.follow(&command, truth, time_s, (&top, &bottom)) {
-                        Ok((speed, executed)) => {
-                            expert_executed += u64::from(executed);
-                            simulation.set_command(speed);
-                        }
-                        Err(error) => {
-                            failure = Some(error);
-                            break Outcome::ControllerLost;
-                        }
-                    }
-                }
-            },
-            Ok(None) => {}
-            Err(error) => {
-                failure = Some(error.to_string());
-                break Outcome::ControllerLost;
-            }
-        }
-        if let Some(outcome) = episode_end(&simulation, setup, limit_steps, observer) {
-            break outcome;
-        }
-    };
-    observer.end(simulation.time(), outcome);
-    let end = Ending {
-        outcome,
-        computed_commands,
-        tick_times,
-        failure,
-        expert_executed,
-    };
-    Ok(trace.finish(&simulation, setup, end))
 }
