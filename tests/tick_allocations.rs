@@ -175,10 +175,10 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
     support::install_log_subscriber();
     let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
     // The shipped policies are part of the repository: a missing one is a failure.
-    let shipped = std::fs::read_to_string(models.join("policy/SHIPPED")).expect("SHIPPED");
+    let shipped = std::fs::read_to_string(models.join("policy/HOST_MODEL")).expect("HOST_MODEL");
     let shipped = format!("policy/{}", shipped.trim());
     // The robot package's policy (cross/package), whatever the rule chose.
-    let robot = std::fs::read_to_string(models.join("policy/ROBOT")).expect("ROBOT");
+    let robot = std::fs::read_to_string(models.join("policy/ROBOT_MODEL")).expect("ROBOT_MODEL");
     let robot = format!("policy/{}", robot.trim());
     for name in [
         "fixtures/cnn",

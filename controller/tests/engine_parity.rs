@@ -103,15 +103,15 @@ fn one_carried_step(network: &Path) -> f32 {
 }
 
 /// Every policy the tests compare: the fixtures and every model `models/policy` ships. The
-/// paper's three rows and the one `SHIPPED` names must be there: a missing one fails.
+/// paper's three rows and the one `HOST_MODEL` names must be there: a missing one fails.
 fn policies() -> Vec<PathBuf> {
     let mut found: Vec<PathBuf> = ["cnn", "cnn-int8", "hcnn", "rcnn"]
         .iter()
         .map(|kind| fixture(kind).join("policy.toml"))
         .collect();
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/policy");
-    let chosen = std::fs::read_to_string(shipped.join("SHIPPED"))
-        .unwrap_or_else(|error| panic!("{}/SHIPPED: {error}", shipped.display()));
+    let chosen = std::fs::read_to_string(shipped.join("HOST_MODEL"))
+        .unwrap_or_else(|error| panic!("{}/HOST_MODEL: {error}", shipped.display()));
     for name in ["cnn", "hcnn", "rcnn", chosen.trim()] {
         let manifest = shipped.join(name).join("policy.toml");
         assert!(manifest.is_file(), "{} is missing", manifest.display());

@@ -355,13 +355,13 @@ def tick_cell(directory: Path, build: str) -> str:
 
 
 def status_table(models: Path) -> str:
-    """The README's summary: the model the host evaluates (SHIPPED) and the one the robot
-    package carries (ROBOT), their goals on the test and fresh seeds, the robot's ticks."""
+    """The README's summary: the model the host evaluates (HOST_MODEL) and the one the robot
+    package carries (ROBOT_MODEL), their goals on the test and fresh seeds, the robot's ticks."""
     lines = [
         "| | model | goals, 20 test seeds (95 % interval) | goals, 100 fresh seeds | V5 computing tick | V6 computing tick |",
         "|---|---|---|---|---|---|",
     ]
-    for role, pointer in (("host model", "SHIPPED"), ("robot package", "ROBOT")):
+    for role, pointer in (("host model", "HOST_MODEL"), ("robot package", "ROBOT_MODEL")):
         name = (models / pointer).read_text().strip()
         directory = models / name
         v5, v6 = ("-", "-") if role == "host model" else (tick_cell(directory, "v5"), tick_cell(directory, "v6"))

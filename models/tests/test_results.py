@@ -178,5 +178,5 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
 
 def test_the_committed_robot_policy_is_the_rules():
     models = REPOSITORY / "models" / "policy"
-    shipped = models / (models / "SHIPPED").read_text().strip()
-    assert (models / "ROBOT").read_text().strip() == results.robot_policy(shipped)[0]
+    shipped = models / (models / "HOST_MODEL").read_text().strip()
+    assert (models / "ROBOT_MODEL").read_text().strip() == results.robot_policy(shipped)[0]

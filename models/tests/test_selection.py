@@ -82,9 +82,9 @@ def test_runs_by_different_engines_on_the_same_seeds_are_refused(tmp_path):
 
 
 def test_the_committed_choice_follows_the_rule():
-    """models/policy/SHIPPED is what the rule picks from the committed rows."""
+    """models/policy/HOST_MODEL is what the rule picks from the committed rows."""
     policy = Path(__file__).resolve().parents[1] / "policy"
-    shipped = (policy / "SHIPPED").read_text().strip()
+    shipped = (policy / "HOST_MODEL").read_text().strip()
     rows = []
     for directory in sorted(p for p in policy.iterdir() if (p / "policy.toml").is_file()):
         manifest = results.load(directory / "policy.toml")

@@ -145,7 +145,7 @@ def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path,
     for role in ("train", "test"):
         (out / f"score_{role}.json").write_text((tmp_path / f"{role}.json").read_text())
     table = tmp_path / "results.md"
-    assert results_main(["--row", f"tiny={out}", "--out", str(table), "--choose", str(tmp_path / "SHIPPED")]) == 0
+    assert results_main(["--row", f"tiny={out}", "--out", str(table), "--choose", str(tmp_path / "HOST_MODEL")]) == 0
     row = next(line for line in table.read_text().splitlines() if line.startswith("| tiny |"))
     assert f"{trainer['test']['error']:.3f}" in row
     assert "| not recorded |" in row  # no closed loop here, so no engine for it
@@ -155,7 +155,7 @@ def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path,
     # One goal in one episode: the Wilson 95 % interval 0.21-1.00; no fresh-seed run.
     assert "| 1 / 1 (0.21-1.00) | - | 20.0 s |" in row and "| compiled (sse4.2) |" in row
     (out / "eval.json").unlink()
-    assert (tmp_path / "SHIPPED").read_text().strip() == out.name
+    assert (tmp_path / "HOST_MODEL").read_text().strip() == out.name
     # Run again: the checkpoint is complete, so it resumes at the end and exports the same.
     manifest = (out / "policy.toml").read_text()
     assert main(argv) == 0
