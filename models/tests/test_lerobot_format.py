@@ -1,0 +1,67 @@
+"""dribble datasets in LeRobot's format: the rows LeRobot's loader reads back are the rows
+written (with LeRobot's own writer and loader, in its environment, where scripts/lerobot has
+made one), and a LeRobot export converts back to a dribble dataset with the same rows."""
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dribble_models import lerobot_format
+from dribble_models.dataset import Episode, load
+
+REPOSITORY = Path(__file__).resolve().parents[2]
+LEROBOT_VENV = Path(os.environ.get("DRIBBLE_LEROBOT_VENV", Path.home() / ".cache/dribble/lerobot-venv"))
+
+
+def episode(seed: int, rows: int) -> Episode:
+    random = np.random.default_rng(seed)
+    return Episode(
+        seed=seed,
+        top=random.integers(0, 256, (rows, 120, 160), dtype=np.uint8),
+        bottom=random.integers(0, 256, (rows, 60, 80), dtype=np.uint8),
+        command=random.uniform(-1, 1, (rows, 3)).astype(np.float32),
+        phase=random.integers(0, 4, rows).astype(np.uint8),
+        robot_pose=random.normal(size=(rows, 3)).astype(np.float32),
+        ball=random.normal(size=(rows, 2)).astype(np.float32),
+        time_s=np.arange(rows) / 30.0,
+    )
+
+
+def test_rows_written_back_as_a_dribble_dataset_load_the_same(tmp_path):
+    episodes = [(episode(3, 5), {}), (episode(4, 2), {"policy_command": np.zeros((2, 3), np.float32), "expert_executed": np.array([0, 1], np.uint8)})]
+    lerobot_format.write_dribble(episodes, tmp_path / "back", teacher="observable")
+    back = load(tmp_path / "back")
+    assert back.teacher == "observable" and back.seeds() == [3, 4]
+    written = [(e, extra) for e, extra in episodes]
+    extras = {3: {}, 4: episodes[1][1]}
+    read = [(e, extras[e.seed]) for e in back.episodes]
+    assert lerobot_format.differences(back, extras, written) == []
+    assert lerobot_format.differences(back, extras, read) == []
+
+
+def test_a_changed_pixel_or_command_is_a_difference(tmp_path):
+    original = episode(7, 3)
+    source = type("Source", (), {"episodes": [original], "seeds": lambda self: [7]})()
+    changed = Episode(**{**original.__dict__, "top": original.top.copy(), "command": original.command.copy()})
+    changed.top[1, 2, 3] ^= 1
+    changed.command[2, 0] += 1e-6
+    found = lerobot_format.differences(source, {}, [(changed, {})])
+    assert found == ["episode 7: top differs", "episode 7: command differs"]
+
+
+@pytest.mark.skipif(not (LEROBOT_VENV / "bin" / "python").exists(), reason="no LeRobot environment (scripts/lerobot makes one)")
+def test_lerobot_reads_an_export_as_the_same_rows(tmp_path):
+    source = tmp_path / "source"
+    lerobot_format.write_dribble([(episode(11, 4), {}), (episode(12, 3), {})], source, teacher="detector")
+    run = lambda *args: subprocess.run([str(REPOSITORY / "scripts" / "lerobot"), *args], capture_output=True, text=True)  # noqa: E731
+    exported = run("export", str(source), str(tmp_path / "lerobot"))
+    assert exported.returncode == 0, exported.stderr
+    info = json.loads((tmp_path / "lerobot" / "meta" / "info.json").read_text())
+    assert info["codebase_version"] == "v3.0" and info["total_frames"] == 7 and info["splits"] == {"train": "0:1", "validation": "1:2"}
+    checked = run("check", str(source), str(tmp_path / "lerobot"))
+    assert checked.returncode == 0, checked.stderr
+    assert "the same rows" in checked.stdout
