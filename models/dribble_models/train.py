@@ -53,7 +53,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -419,7 +419,7 @@ def masked_loss(out: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> 
 class Training:
     """One model's training run: data, model, optimiser, checkpoints."""
 
-    def __init__(self, args: argparse.Namespace, dataset: Dataset, added: list[Dataset] | None = None, device: torch.device | None = None):
+    def __init__(self, args: TrainingConfig, dataset: Dataset, added: list[Dataset] | None = None, device: torch.device | None = None):
         self.args = args
         self.device = device or torch.device("cpu")
         self.kind = args.kind
@@ -794,7 +794,7 @@ def added_description(directory: Path) -> str:
     return f"{directory.name} ({driven})"
 
 
-def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> str:
+def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
     parts = [
         f"Adam lr {args.lr}",
         f"batch {args.batch_size}" if args.kind != "rcnn" else f"{args.lanes} lanes of {args.window}-step windows",
@@ -832,7 +832,50 @@ def notes_of(args: argparse.Namespace, device: torch.device | None = None) -> st
     return "; ".join(parts)
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+@dataclass(frozen=True)
+class TrainingConfig:
+    """Everything one training run is told (`python -m dribble_models.train --help` says what
+    each means); made by `parse_args`, which checks that the options fit together."""
+
+    kind: str
+    dataset: Path
+    out: Path
+    add_dataset: tuple[Path, ...] = ()
+    cut_stalls: float | None = None
+    init_from: Path | None = None
+    prune_from: Path | None = None
+    distill_from: Path | None = None
+    test_dataset: Path | None = None
+    epochs: int = 0
+    epoch_fraction: float = 1.0
+    batch_size: int = 64
+    lr: float = 1e-3
+    seed: int = 0
+    validation_episodes: int = 10
+    window: int = 100
+    features_from: Path | None = None
+    freeze_features: bool = False
+    lanes: int = 4
+    clusters: int = contract.DEFAULT_CLUSTERS
+    kmeans_rows: int = 20000
+    filters: Filters = PAPER_FILTERS
+    modes: int = 1
+    augment: bool = False
+    camera_augment: float = 0.0
+    balance_phases: bool = False
+    threads: int = 1
+    device: str = "auto"
+    checkpoint_dir: Path | None = None
+    fresh: bool = False
+
+    @classmethod
+    def from_namespace(cls, namespace: argparse.Namespace) -> "TrainingConfig":
+        """The configuration `parse_args`' parser read (every field named as its option)."""
+        values = vars(namespace)
+        return cls(**{f.name: values[f.name] for f in fields(cls)} | {"add_dataset": tuple(values["add_dataset"])})
+
+
+def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser = argparse.ArgumentParser(
         prog="python -m dribble_models.train",
         description="Train a policy (behaviour cloning of the expert) and export it for the controller.",
@@ -894,7 +937,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--freeze-features computes each episode's features once: no --augment")
     if args.prune_from is not None and args.init_from is not None:
         parser.error("--prune-from and --init-from are two starts: name one")
-    return args
+    return TrainingConfig.from_namespace(args)
 
 
 def main(argv: list[str] | None = None) -> int:

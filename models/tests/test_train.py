@@ -365,3 +365,15 @@ def test_camera_augmentation_is_named_in_the_notes():
     assert "camera conditions augmented on 50% of the rows" in notes_of(args, torch.device("cpu"))
     with pytest.raises(SystemExit):
         parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "2"])
+
+
+def test_the_options_become_a_typed_frozen_configuration():
+    from dataclasses import FrozenInstanceError
+
+    from dribble_models.train import TrainingConfig
+
+    config = parse_args(["--kind", "rcnn", "--dataset", "d", "--out", "o", "--add-dataset", "a", "--add-dataset", "b"])
+    assert isinstance(config, TrainingConfig)
+    assert config.epochs > 0 and config.add_dataset == (Path("a"), Path("b")) and config.window == 100
+    with pytest.raises(FrozenInstanceError):
+        config.lr = 1.0  # type: ignore[misc]
