@@ -76,6 +76,7 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
+    restore_default_sigpipe();
     let cli = Cli::parse();
     log_output::install(cli.log_format)?;
     match cli.command {
@@ -89,5 +90,16 @@ fn main() -> anyhow::Result<()> {
         Command::Soak(args) => commands::soak::run(&args),
         Command::GymServer(args) => commands::gym_server::run(&args),
         Command::Merge(args) => commands::merge::run(&args),
+    }
+}
+
+/// Lets a closed pipe end this program quietly, as it ends `cat` or `grep` (`dribble score ...
+/// | head -2`): Rust ignores SIGPIPE, which turns the next write into a panic.
+fn restore_default_sigpipe() {
+    // SAFETY: called first thing in main, before any thread starts; SIG_DFL is a valid
+    // disposition for SIGPIPE.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
