@@ -20,9 +20,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use dribble_controller::policy::engine::onnx_builder::{Attribute, floats, model, node};
 use dribble_controller::{LoopConfig, MotionCommand, SyncConfig, Timestamp};
-use prost::Message as _;
+
+pub use super::replacement_policy::{REPLACEMENT, replacement_network};
 use time::OffsetDateTime;
 use time::format_description::well_known::Rfc3339;
 
@@ -31,46 +31,12 @@ const PAUSE: Duration = Duration::from_secs(1);
 const RESTART_GAP: Duration = Duration::from_millis(500);
 /// How long after a fault the controller has to show its reaction.
 const SETTLE: Duration = Duration::from_secs(3);
-/// The command the replacement network answers whatever it sees (normalised forward, left,
-/// turn); the running fixture or trained policy never computes exactly this.
-pub const REPLACEMENT: [f32; 3] = [0.5, -0.375, 0.25];
-
 /// How soon after the cameras fall silent a stop must arrive: the controller's silence
 /// limit (3 camera periods, 100 ms, counted from the last frame, which came before the
 /// fault), then its next tick (10 ms) and that tick's budget (2 ms).
 pub fn stop_within() -> Duration {
     let config = LoopConfig::default();
     SyncConfig::default().silence_limit() + config.tick_period + config.budget
-}
-
-/// A network of the fixture's contract (top [1,1,120,160], bottom [1,1,60,80] in, command
-/// [1,3] out) that answers [`REPLACEMENT`]: both images are read (their maxima times zero),
-/// so a loader takes it as it would take a trained one.
-pub fn replacement_network() -> Vec<u8> {
-    let keep = [("keepdims", Attribute::Int(1))];
-    model(
-        17,
-        &[("top", &[1, 1, 120, 160]), ("bottom", &[1, 1, 60, 80])],
-        vec![
-            node("ReduceMax", &["top"], &["top_max"], &keep),
-            node("ReduceMax", &["bottom"], &["bottom_max"], &keep),
-            node("Add", &["top_max", "bottom_max"], &["both"], &[]),
-            node(
-                "Flatten",
-                &["both"],
-                &["flat"],
-                &[("axis", Attribute::Int(1))],
-            ),
-            node("Mul", &["flat", "zero"], &["nothing"], &[]),
-            node("Add", &["nothing", "answer"], &["command"], &[]),
-        ],
-        vec![
-            floats("zero", &[], &[0.0]),
-            floats("answer", &[1, 3], &REPLACEMENT),
-        ],
-        &["command"],
-    )
-    .encode_to_vec()
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -7,5 +7,6 @@ pub mod command_watch;
 pub mod controller_process;
 pub mod faults;
 pub mod motion_side;
+pub mod replacement_policy;
 pub mod second_log;
 pub mod verdict;
