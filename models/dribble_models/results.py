@@ -171,13 +171,17 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
 
 def selection_runs(directory: Path) -> str:
     """The closed loops on the selection seeds kept in `directory` (models/selection: one
-    eval_summary JSON per model or DAgger iteration), with their intervals, failure classes
-    and median time to goal."""
+    eval_summary JSON per model or DAgger iteration) and the models' runs under randomized
+    conditions (`models/policy/<name>/select_randomized.json`, named `<name>-randomized`),
+    with their intervals, failure classes and median time to goal."""
     lines = [
         "| run | seeds | goals (95 % interval) | failure classes | median time to goal | closed loop run by |",
         "|---|---|---|---|---|---|",
     ]
-    for path in sorted(directory.glob("*.json")):
+    runs = {path.stem: path for path in directory.glob("*.json")}
+    for path in (directory.parent / "policy").glob("*/select_randomized.json"):
+        runs.setdefault(f"{path.parent.name}-randomized", path)
+    for stem, path in sorted(runs.items()):
         summary = read(path)
         episodes = summary["episodes"]
         seeds = sorted(int(e["seed"]) for e in episodes)
@@ -187,7 +191,7 @@ def selection_runs(directory: Path) -> str:
         times = [e["duration_s"] for e in episodes if e["outcome"] == "goal"]
         median = f"{statistics.median(times):.1f} s" if times else "-"
         lines.append(
-            f"| {path.stem} | {seeds[0]}..{seeds[-1]} | {goals_cell(summary)} | {described} | {median} | {summary.get('engine') or 'not recorded'} |"
+            f"| {stem} | {seeds[0]}..{seeds[-1]} | {goals_cell(summary)} | {described} | {median} | {summary.get('engine') or 'not recorded'} |"
         )
     return "\n".join(lines)
 
