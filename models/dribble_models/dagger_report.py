@@ -8,7 +8,7 @@ Every number is read from the files `scripts/dagger` leaves in each iteration's 
 directory (`policy.toml`, `score_test.json`, `select.json`, and for the chosen iteration
 `eval.json` and `fresh.json`) and from the rounds' `dataset.json`. `--chosen FILE` writes the
 directory of the iteration with the most goals on the selection episodes (then the lowest
-validation error; `selection.choose`); with `--ship` that iteration is copied there with the
+validation error; `shipping_rules.choose`); with `--ship` that iteration is copied there with the
 table and plot. The test episodes play no part in either.
 """
 
@@ -22,8 +22,8 @@ import sys
 from pathlib import Path
 
 from .manifest import load
-from .selection import Candidate, read_selection
-from .selection import choose as choose_candidate
+from .shipping_rules import Candidate, read_selection
+from .shipping_rules import choose as choose_candidate
 
 #: The paper's best test error (R-CNN) and most goals in 20 test episodes (R-CNN).
 PAPER_TEST_ERROR = 0.14
@@ -144,7 +144,7 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
 
 
 def choose(rows: list[dict]) -> dict:
-    """The iteration to ship, by the one rule of `selection.choose` (selection goals, then
+    """The iteration to ship, by the one rule of `shipping_rules.choose` (selection goals, then
     validation error) on each iteration's select.json."""
     candidates = [
         Candidate(

@@ -32,9 +32,20 @@ from pathlib import Path
 from .dataset import PHASES
 from .eval_summary import failure_class
 from .manifest import load
-from .selection import Candidate, chosen_seeds, read_selection
+from .shipping_rules import (
+    INT8_ERROR_MARGIN,
+    V5_TICK_BUDGET,
+    V6_TICK_BUDGET,
+    Candidate,
+    chosen_seeds,
+    int8_quality,
+    read_selection,
+    recorded_tick,
+    robot_policy,
+    scored_validation_error,
+)
+from .shipping_rules import choose as choose_candidate
 from .teachers import wilson
-from .selection import choose as choose_candidate
 
 #: Table 1 of the paper and its text (forward pass on a laptop i7; none given for the H-CNN).
 PAPER = [
@@ -312,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def choose(rows: list[dict]) -> dict:
-    """The shipped row, by the one rule of `selection.choose` on each row's select.json.
+    """The shipped row, by the one rule of `shipping_rules.choose` on each row's select.json.
     Never the test episodes: they are for reporting only."""
     candidates = {
         Path(row["directory"]).name: Candidate(
@@ -327,19 +338,6 @@ def choose(rows: list[dict]) -> dict:
     for row in rows:
         row["selection"] = candidates[Path(row["directory"]).name].reason(seeds)
     return next(row for row in rows if Path(row["directory"]).name == chosen.name)
-
-
-# The most an int8 policy's validation error may exceed its float model's (issue 29; on the
-# validation episodes since issue 48, the test ones being for reporting only).
-INT8_ERROR_MARGIN = 0.01
-
-#: The V5's computing-tick budget in instructions: 1.5 ms (issue 29's target, the slow end of
-#: the estimate) at 1.6 GHz and 0.7 instructions a cycle, the low end of cross/README's range
-#: for the Atom Z530 (`cross/count v5 --tick`, recorded per policy in `v5_tick.json`).
-V5_TICK_BUDGET = 1_680_000
-#: The V6's: 0.6 ms (issue 29's target, the slow end) at 1.91 GHz and 1.0 instructions a cycle,
-#: the low end of cross/README's range for the Atom E3845 (`v6_tick.json`).
-V6_TICK_BUDGET = 1_146_000
 
 
 #: The flat estimate of a tick's time from its instructions (`cross/README.md`): each robot's
@@ -384,102 +382,6 @@ def scored_test_error(directory: Path) -> float | None:
     if score is not None:
         return score["error"]
     return load(directory / "policy.toml")["training"].get("test_error")
-
-
-def recorded_tick(directory: Path, build: str) -> int | None:
-    """Instructions per computing tick on the `build` ("v5" or "v6") robot build, as `cross/count
-    v5|v6 --tick --record` left them, if counted on exactly the networks the directory holds now."""
-    record = read(directory / f"{build}_tick.json")
-    if record is None:
-        return None
-    networks = load(directory / "policy.toml")["networks"]
-    if record.get("networks_sha256") != [hashlib.sha256((directory / n).read_bytes()).hexdigest() for n in networks]:
-        return None
-    return int(record["instructions"])
-
-
-def scored_validation_error(directory: Path, own_score_needed: bool = False) -> float | None:
-    """A policy's error on its validation episodes (training seeds held out from fitting) as the
-    robot's code scores it: `dribble score` on a dataset of exactly the manifest's
-    `validation_seeds`, in score_validation.json. Without that score, a float model's manifest
-    value (the trainer's); an int8 manifest carries its float model's training table, so for it
-    (`own_score_needed`) only the score is the network's own. Never the test episodes."""
-    training = load(directory / "policy.toml")["training"]
-    score = read(directory / "score_validation.json")
-    if score is not None:
-        scored = sorted(int(e["seed"]) for e in score.get("episodes", []))
-        expected = sorted(int(s) for s in training.get("validation_seeds", []))
-        if not expected or scored != expected:
-            return None
-        return score["error"]
-    return None if own_score_needed else training.get("validation_error")
-
-
-def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
-    """Whether the int8 policy `twin` keeps the quality (issue 29's gate, on choosing data only,
-    issue 48) and what was measured: quantized from exactly the networks of its float model
-    (`<name>` without `-int8`, beside it), its error on the validation episodes at most 0.01
-    above that model's, and its goals on the shipped model's selection seeds (its run in
-    models/selection/<twin>.json) not below the lower end of the shipped model's Wilson 95 %
-    interval there. The test and fresh seeds take no part."""
-    original = twin.parent / twin.name.removesuffix("-int8")
-    if not (twin / "policy.toml").is_file() or not (original / "policy.toml").is_file():
-        return False, f"no float model {original.name} beside it", 0
-    manifest, float_manifest = load(twin / "policy.toml"), load(original / "policy.toml")
-    networks = [hashlib.sha256((original / n).read_bytes()).hexdigest() for n in float_manifest["networks"]]
-    if manifest.get("precision") != "int8" or manifest.get("quantization", {}).get("float_networks_sha256") != networks:
-        return False, f"not quantized from {original.name}'s networks", 0
-    errors = (scored_validation_error(twin, own_score_needed=True), scored_validation_error(original))
-    if None in errors:
-        return False, "a validation score on the manifest's validation seeds is missing (score_validation.json)", 0
-    run = read_selection(twin.parent.parent / "selection" / f"{twin.name}.json")
-    if run is None or shipped_run is None or run.seeds != shipped_run.seeds:
-        return False, "no selection run on the shipped model's seeds", 0
-    low, _ = wilson(shipped_run.goals, shipped_run.episodes)
-    measured = (
-        f"validation error {errors[0]:.4f} against {original.name}'s {errors[1]:.4f}; {run.goals} / {run.episodes} "
-        f"selection goals against the shipped model's {shipped_run.goals} / {shipped_run.episodes} (interval from {low:.2f})"
-    )
-    kept = errors[0] <= errors[1] + INT8_ERROR_MARGIN and run.goals >= low * run.episodes
-    return kept, measured, run.goals
-
-
-def robot_policy(shipped: Path) -> tuple[str, str]:
-    """The policy the robot package carries (cross/package) and why.
-
-    Candidates are the int8 policies beside the shipped model (`<float model>-int8`, made by
-    dribble_models.quantize from exactly that float model's networks) that keep the quality
-    (`int8_quality`: validation error, and goals on the shipped model's selection seeds against
-    the shipped model's interval). Of those whose recorded V5 tick (`v5_tick.json`) fits
-    `V5_TICK_BUDGET`, the ones whose V6 tick (`v6_tick.json`) fits `V6_TICK_BUDGET` too come
-    first (the package runs on both robots), then the most selection goals, then the fewest V5
-    instructions; if none fits the V5, the shipped model's own twin where it keeps the quality;
-    else the shipped model. The choice reads the selection seeds only: closed loops on test seeds take no part;
-    the robot policy's are reported beside it."""
-    shipped_run = read_selection(shipped / "select.json")
-    fitting = []
-    for twin in sorted(shipped.parent.glob("*-int8")):
-        kept, measured, goals = int8_quality(twin, shipped_run)
-        instructions = recorded_tick(twin, "v5")
-        if kept and instructions is not None and instructions <= V5_TICK_BUDGET:
-            v6 = recorded_tick(twin, "v6")
-            fits_v6 = v6 is not None and v6 <= V6_TICK_BUDGET
-            fitting.append((not fits_v6, -goals, instructions, twin.name, measured, v6))
-    if fitting:
-        misses_v6, _, instructions, name, measured, v6 = min(fitting)
-        v6_text = "not counted" if v6 is None else f"{v6:,} of {V6_TICK_BUDGET:,}"
-        fits = "the V5 tick" + ("" if misses_v6 else " and the V6 tick")
-        return name, (
-            f"keeps the quality and fits {fits} (V5: {instructions:,} instructions of {V5_TICK_BUDGET:,}; "
-            f"V6: {v6_text}): {measured}"
-        )
-    twin = shipped.parent / f"{shipped.name}-int8"
-    if not (twin / "policy.toml").is_file():
-        return shipped.name, f"no int8 policy fits the V5 tick and keeps the quality, and there is no int8 twin {twin}"
-    kept, measured, _ = int8_quality(twin, shipped_run)
-    if not kept:
-        return shipped.name, f"{twin.name} does not keep the quality: {measured}"
-    return twin.name, f"no int8 policy fits the V5 tick and keeps the quality; the shipped model's twin does: {measured}"
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from dribble_models import results
+from dribble_models import results, shipping_rules
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 
@@ -83,37 +83,37 @@ def test_the_robot_carries_the_int8_twin_only_where_it_keeps_the_float_models_qu
     shipped = models / "best"
     _policy(shipped, 0.100)
     _selection(shipped / "select.json", 44)
-    name, why = results.robot_policy(shipped)
+    name, why = shipping_rules.robot_policy(shipped)
     assert name == "best" and why.endswith(f"no int8 twin {models / 'best-int8'}")
     digest = hashlib.sha256(b"best").hexdigest()
     twin = models / "best-int8"
     _policy(twin, 0.109, [digest])
-    name, why = results.robot_policy(shipped)
+    name, why = shipping_rules.robot_policy(shipped)
     assert name == "best" and "no selection run" in why
     # 44 / 50 has a Wilson interval from 0.762 (38.1 goals of 50): 39 passes, 38 does not.
     for goals, chosen in ((39, "best-int8"), (38, "best")):
         _selection(tmp_path / "selection" / "best-int8.json", goals)
-        assert results.robot_policy(shipped)[0] == chosen, goals
+        assert shipping_rules.robot_policy(shipped)[0] == chosen, goals
     # On other seeds than the float model's run, nothing is compared.
     _selection(tmp_path / "selection" / "best-int8.json", 50, first=20050)
-    assert results.robot_policy(shipped)[0] == "best"
+    assert shipping_rules.robot_policy(shipped)[0] == "best"
     _selection(tmp_path / "selection" / "best-int8.json", 44)
     # A validation error more than 0.01 above the float model's fails; a twin of other networks too.
     _validation_score(twin, 0.111)
-    assert results.robot_policy(shipped)[0] == "best"
+    assert shipping_rules.robot_policy(shipped)[0] == "best"
     # A test score takes no part (the test seeds are for reporting only), nor a score on other
     # seeds than the validation ones, and without its own score an int8 policy is no candidate.
     _validation_score(twin, 0.109)
     (twin / "score_test.json").write_text(json.dumps({"error": 0.5}))
-    assert results.robot_policy(shipped)[0] == "best-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
     _validation_score(twin, 0.100, seeds=[10000, 10001])
-    name, why = results.robot_policy(shipped)
+    name, why = shipping_rules.robot_policy(shipped)
     assert name == "best" and "validation score" in why
     (twin / "score_validation.json").unlink()
-    assert results.robot_policy(shipped)[0] == "best"
+    assert shipping_rules.robot_policy(shipped)[0] == "best"
     shutil.rmtree(twin)
     _policy(twin, 0.100, [hashlib.sha256(b"other").hexdigest()])
-    name, why = results.robot_policy(shipped)
+    name, why = shipping_rules.robot_policy(shipped)
     assert name == "best" and "not quantized from best's networks" in why
 
 
@@ -133,50 +133,50 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
         _selection(tmp_path / "selection" / f"{name}.json", goals)
         _tick(models / name, instructions)
     # The narrow twin keeps the quality (0.125 <= 0.120 + 0.01; 42 of 50 above 38.1) and fits.
-    name, why = results.robot_policy(shipped)
+    name, why = shipping_rules.robot_policy(shipped)
     assert name == "narrow-int8" and "V5: 1,647,536 instructions of 1,680,000; V6: not counted" in why
     # Its validation error is compared with its own float model's, not the shipped one's.
     (narrow / "policy.toml").write_text((narrow / "policy.toml").read_text().replace("0.12", "0.114"))
-    assert results.robot_policy(shipped)[0] == "best-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
     (narrow / "policy.toml").write_text((narrow / "policy.toml").read_text().replace("0.114", "0.12"))
     # The robot's own score of the float network, where there is one, over its manifest's value.
     _validation_score(narrow, 0.114)
-    assert results.robot_policy(shipped)[0] == "best-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
     _validation_score(narrow, 0.12)
-    assert results.robot_policy(shipped)[0] == "narrow-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "narrow-int8"
     # Over the budget (or not counted) it is no candidate: the shipped model's twin, which keeps
     # the quality though its tick does not fit, is the fallback.
-    _tick(models / "narrow-int8", results.V5_TICK_BUDGET + 1)
-    name, why = results.robot_policy(shipped)
+    _tick(models / "narrow-int8", shipping_rules.V5_TICK_BUDGET + 1)
+    name, why = shipping_rules.robot_policy(shipped)
     assert name == "best-int8" and "no int8 policy fits the V5 tick" in why
     (models / "narrow-int8" / "v5_tick.json").unlink()
-    assert results.robot_policy(shipped)[0] == "best-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
     # A count of other networks than the directory holds now does not count.
     _tick(models / "narrow-int8", 1_000_000)
     (models / "narrow-int8" / "policy.onnx").write_bytes(b"retrained")
-    assert results.robot_policy(shipped)[0] != "narrow-int8"
+    assert shipping_rules.robot_policy(shipped)[0] != "narrow-int8"
     (models / "narrow-int8" / "policy.onnx").write_bytes(b"narrow-int8")
     # Goals on the shipped model's selection seeds below its interval rule a fitting twin out.
-    _tick(models / "narrow-int8", results.V5_TICK_BUDGET)
-    assert results.robot_policy(shipped)[0] == "narrow-int8"
+    _tick(models / "narrow-int8", shipping_rules.V5_TICK_BUDGET)
+    assert shipping_rules.robot_policy(shipped)[0] == "narrow-int8"
     _selection(tmp_path / "selection" / "narrow-int8.json", 38)
-    assert results.robot_policy(shipped)[0] == "best-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
     # Of two that fit, the more selection goals, then the fewer instructions.
     _selection(tmp_path / "selection" / "narrow-int8.json", 42)
     _tick(models / "best-int8", 1_600_000)
-    assert results.robot_policy(shipped)[0] == "narrow-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "narrow-int8"
     _selection(tmp_path / "selection" / "best-int8.json", 42)
-    assert results.robot_policy(shipped)[0] == "best-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
     # One that fits the V6 tick too comes before more goals; over the V6's budget it does not.
     _tick(models / "narrow-int8", results.V6_TICK_BUDGET, "v6")
     _selection(tmp_path / "selection" / "narrow-int8.json", 40)
-    name, why = results.robot_policy(shipped)
+    name, why = shipping_rules.robot_policy(shipped)
     assert name == "narrow-int8" and "and the V6 tick" in why and "V6: 1,146,000 of 1,146,000" in why
     _tick(models / "narrow-int8", results.V6_TICK_BUDGET + 1, "v6")
-    assert results.robot_policy(shipped)[0] == "best-int8"
+    assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
 
 
 def test_the_committed_robot_policy_is_the_rules():
     models = REPOSITORY / "models" / "policy"
     shipped = models / (models / "HOST_MODEL").read_text().strip()
-    assert (models / "ROBOT_MODEL").read_text().strip() == results.robot_policy(shipped)[0]
+    assert (models / "ROBOT_MODEL").read_text().strip() == shipping_rules.robot_policy(shipped)[0]

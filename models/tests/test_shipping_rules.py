@@ -1,4 +1,4 @@
-"""The one rule that chooses the shipped model and a DAgger iteration (selection.py), as
+"""The one rule that chooses the shipped model and a DAgger iteration (shipping_rules.py), as
 results.py and dagger_report.py both apply it."""
 
 import json
@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from dribble_models import dagger_report, results
-from dribble_models.selection import Candidate, SelectionError, choose, read_selection
+from dribble_models.shipping_rules import Candidate, SelectionError, choose, read_selection
 
 
 def write_run(path: Path, seeds, goals: set[int]) -> Path:

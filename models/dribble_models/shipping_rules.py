@@ -1,0 +1,224 @@
+"""The shipping rules, both of them: which float model the host evaluates (`choose`: the
+results table's chosen row, a DAgger iteration) and which int8 policy the robot package
+carries (`robot_policy`).
+
+The host model: most goals in closed loop on the selection episodes, then the lowest
+validation error. The selection episodes are training seeds held out from fitting (90..99) or the
+selection seeds 20000..20049 (shared/DESIGN.md, "Metrics"); test seeds (10000..10019,
+30000..30099) are for reporting only, and a `select.json` that holds one is refused.
+
+The choice is made on one set of seeds: the largest any candidate was evaluated on (the
+selection seeds 20000..20049 once they are run; the retired 90..99 before). A candidate
+without a `select.json`, or with one on other seeds, is ranked after every candidate on the
+chosen set, and the reason says so: its run must be repeated to compete. Candidates on the
+same seeds but run by different engines cannot be compared (a closed loop amplifies an
+engine's rounding): that is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from .manifest import load
+from .teachers import wilson
+
+TEST_SEEDS = frozenset(range(10000, 10020)) | frozenset(range(30000, 30100))
+
+
+class SelectionError(ValueError):
+    """A selection file that cannot take part in a choice."""
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What a candidate's `select.json` says: goals, episodes, and on which seeds."""
+
+    goals: int
+    episodes: int
+    seeds: tuple[int, ...]
+    engine: str | None
+
+
+def read_selection(path: Path) -> Selection | None:
+    """The selection run in `path` (an `eval_summary` JSON), or None if there is none."""
+    if not path.is_file():
+        return None
+    summary = json.loads(path.read_text())
+    episodes = summary.get("episodes") or []
+    if not episodes:
+        raise SelectionError(f"{path}: no episodes")
+    seeds = tuple(int(e["seed"]) for e in episodes)
+    tested = sorted(TEST_SEEDS.intersection(seeds))
+    if tested:
+        raise SelectionError(f"{path}: test seeds {tested[:5]} are for reporting only, never for choosing")
+    if len(set(seeds)) != len(seeds):
+        raise SelectionError(f"{path}: a seed appears twice")
+    goals = sum(e["outcome"] == "goal" for e in episodes)
+    return Selection(goals=goals, episodes=len(episodes), seeds=tuple(sorted(seeds)), engine=summary.get("engine"))
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One model that may be chosen: a name, its selection run, its validation error."""
+
+    name: str
+    selection: Selection | None
+    validation_error: float | None
+
+    def key(self, seeds: tuple[int, ...] | None = None) -> tuple:
+        counted = self.selection is not None and (seeds is None or self.selection.seeds == seeds)
+        goals = self.selection.goals if counted else -1
+        validation = self.validation_error if self.validation_error is not None else math.inf
+        return (-goals, validation, self.name)
+
+    def reason(self, seeds: tuple[int, ...] | None = None) -> str:
+        validation = "no validation error" if self.validation_error is None else f"validation error {self.validation_error:.3f}"
+        if self.selection is None:
+            return f"no selection run (select.json), {validation}"
+        if seeds is not None and self.selection.seeds != seeds:
+            return (
+                f"selection run on seeds {describe(self.selection.seeds)}, not the chosen set {describe(seeds)}: "
+                f"ranked last until run again, {validation}"
+            )
+        return f"{self.selection.goals} goals in {self.selection.episodes} selection episodes, {validation}"
+
+
+def describe(seeds: tuple[int, ...]) -> str:
+    return f"{seeds[0]}..{seeds[-1]} ({len(seeds)})"
+
+
+def chosen_seeds(candidates: list[Candidate]) -> tuple[int, ...] | None:
+    """The seed set the choice is made on: the largest any candidate was evaluated on (the
+    larger set has more power); on a tie in size, the later seeds (the newer set)."""
+    sets = {c.selection.seeds for c in candidates if c.selection is not None}
+    return max(sets, key=lambda s: (len(s), s)) if sets else None
+
+
+def choose(candidates: list[Candidate]) -> Candidate:
+    """Most selection goals on the chosen seed set, then the lowest validation error, then
+    the name (so a tie is decided the same way every time)."""
+    if not candidates:
+        raise SelectionError("nothing to choose from")
+    seeds = chosen_seeds(candidates)
+    engines = {c.selection.engine for c in candidates if c.selection is not None and c.selection.seeds == seeds}
+    if len(engines) > 1:
+        described = "; ".join(f"{c.name}: {c.selection.engine}" for c in candidates if c.selection is not None and c.selection.seeds == seeds)
+        raise SelectionError(f"the candidates' selection runs on {describe(seeds)} were run by different engines, run them again with one: {described}")
+    return min(candidates, key=lambda c: c.key(seeds))
+
+
+def read_json(path: Path) -> dict | None:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+# The most an int8 policy's validation error may exceed its float model's (issue 29; on the
+# validation episodes since issue 48, the test ones being for reporting only).
+INT8_ERROR_MARGIN = 0.01
+
+#: The V5's computing-tick budget in instructions: 1.5 ms (issue 29's target, the slow end of
+#: the estimate) at 1.6 GHz and 0.7 instructions a cycle, the low end of cross/README's range
+#: for the Atom Z530 (`cross/count v5 --tick`, recorded per policy in `v5_tick.json`).
+V5_TICK_BUDGET = 1_680_000
+#: The V6's: 0.6 ms (issue 29's target, the slow end) at 1.91 GHz and 1.0 instructions a cycle,
+#: the low end of cross/README's range for the Atom E3845 (`v6_tick.json`).
+V6_TICK_BUDGET = 1_146_000
+
+
+def recorded_tick(directory: Path, build: str) -> int | None:
+    """Instructions per computing tick on the `build` ("v5" or "v6") robot build, as `cross/count
+    v5|v6 --tick --record` left them, if counted on exactly the networks the directory holds now."""
+    record = read_json(directory / f"{build}_tick.json")
+    if record is None:
+        return None
+    networks = load(directory / "policy.toml")["networks"]
+    if record.get("networks_sha256") != [hashlib.sha256((directory / n).read_bytes()).hexdigest() for n in networks]:
+        return None
+    return int(record["instructions"])
+
+
+def scored_validation_error(directory: Path, own_score_needed: bool = False) -> float | None:
+    """A policy's error on its validation episodes (training seeds held out from fitting) as the
+    robot's code scores it: `dribble score` on a dataset of exactly the manifest's
+    `validation_seeds`, in score_validation.json. Without that score, a float model's manifest
+    value (the trainer's); an int8 manifest carries its float model's training table, so for it
+    (`own_score_needed`) only the score is the network's own. Never the test episodes."""
+    training = load(directory / "policy.toml")["training"]
+    score = read_json(directory / "score_validation.json")
+    if score is not None:
+        scored = sorted(int(e["seed"]) for e in score.get("episodes", []))
+        expected = sorted(int(s) for s in training.get("validation_seeds", []))
+        if not expected or scored != expected:
+            return None
+        return score["error"]
+    return None if own_score_needed else training.get("validation_error")
+
+
+def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
+    """Whether the int8 policy `twin` keeps the quality (issue 29's gate, on choosing data only,
+    issue 48) and what was measured: quantized from exactly the networks of its float model
+    (`<name>` without `-int8`, beside it), its error on the validation episodes at most 0.01
+    above that model's, and its goals on the shipped model's selection seeds (its run in
+    models/selection/<twin>.json) not below the lower end of the shipped model's Wilson 95 %
+    interval there. The test and fresh seeds take no part."""
+    original = twin.parent / twin.name.removesuffix("-int8")
+    if not (twin / "policy.toml").is_file() or not (original / "policy.toml").is_file():
+        return False, f"no float model {original.name} beside it", 0
+    manifest, float_manifest = load(twin / "policy.toml"), load(original / "policy.toml")
+    networks = [hashlib.sha256((original / n).read_bytes()).hexdigest() for n in float_manifest["networks"]]
+    if manifest.get("precision") != "int8" or manifest.get("quantization", {}).get("float_networks_sha256") != networks:
+        return False, f"not quantized from {original.name}'s networks", 0
+    errors = (scored_validation_error(twin, own_score_needed=True), scored_validation_error(original))
+    if None in errors:
+        return False, "a validation score on the manifest's validation seeds is missing (score_validation.json)", 0
+    run = read_selection(twin.parent.parent / "selection" / f"{twin.name}.json")
+    if run is None or shipped_run is None or run.seeds != shipped_run.seeds:
+        return False, "no selection run on the shipped model's seeds", 0
+    low, _ = wilson(shipped_run.goals, shipped_run.episodes)
+    measured = (
+        f"validation error {errors[0]:.4f} against {original.name}'s {errors[1]:.4f}; {run.goals} / {run.episodes} "
+        f"selection goals against the shipped model's {shipped_run.goals} / {shipped_run.episodes} (interval from {low:.2f})"
+    )
+    kept = errors[0] <= errors[1] + INT8_ERROR_MARGIN and run.goals >= low * run.episodes
+    return kept, measured, run.goals
+
+
+def robot_policy(shipped: Path) -> tuple[str, str]:
+    """The policy the robot package carries (cross/package) and why.
+
+    Candidates are the int8 policies beside the shipped model (`<float model>-int8`, made by
+    dribble_models.quantize from exactly that float model's networks) that keep the quality
+    (`int8_quality`: validation error, and goals on the shipped model's selection seeds against
+    the shipped model's interval). Of those whose recorded V5 tick (`v5_tick.json`) fits
+    `V5_TICK_BUDGET`, the ones whose V6 tick (`v6_tick.json`) fits `V6_TICK_BUDGET` too come
+    first (the package runs on both robots), then the most selection goals, then the fewest V5
+    instructions; if none fits the V5, the shipped model's own twin where it keeps the quality;
+    else the shipped model. The choice reads the selection seeds only: closed loops on test seeds take no part;
+    the robot policy's are reported beside it."""
+    shipped_run = read_selection(shipped / "select.json")
+    fitting = []
+    for twin in sorted(shipped.parent.glob("*-int8")):
+        kept, measured, goals = int8_quality(twin, shipped_run)
+        instructions = recorded_tick(twin, "v5")
+        if kept and instructions is not None and instructions <= V5_TICK_BUDGET:
+            v6 = recorded_tick(twin, "v6")
+            fits_v6 = v6 is not None and v6 <= V6_TICK_BUDGET
+            fitting.append((not fits_v6, -goals, instructions, twin.name, measured, v6))
+    if fitting:
+        misses_v6, _, instructions, name, measured, v6 = min(fitting)
+        v6_text = "not counted" if v6 is None else f"{v6:,} of {V6_TICK_BUDGET:,}"
+        fits = "the V5 tick" + ("" if misses_v6 else " and the V6 tick")
+        return name, (
+            f"keeps the quality and fits {fits} (V5: {instructions:,} instructions of {V5_TICK_BUDGET:,}; "
+            f"V6: {v6_text}): {measured}"
+        )
+    twin = shipped.parent / f"{shipped.name}-int8"
+    if not (twin / "policy.toml").is_file():
+        return shipped.name, f"no int8 policy fits the V5 tick and keeps the quality, and there is no int8 twin {twin}"
+    kept, measured, _ = int8_quality(twin, shipped_run)
+    if not kept:
+        return shipped.name, f"{twin.name} does not keep the quality: {measured}"
+    return twin.name, f"no int8 policy fits the V5 tick and keeps the quality; the shipped model's twin does: {measured}"
