@@ -168,11 +168,11 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
     _selection(tmp_path / "selection" / "best-int8.json", 42)
     assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
     # One that fits the V6 tick too comes before more goals; over the V6's budget it does not.
-    _tick(models / "narrow-int8", results.V6_TICK_BUDGET, "v6")
+    _tick(models / "narrow-int8", shipping_rules.V6_TICK_BUDGET, "v6")
     _selection(tmp_path / "selection" / "narrow-int8.json", 40)
     name, why = shipping_rules.robot_policy(shipped)
     assert name == "narrow-int8" and "and the V6 tick" in why and "V6: 1,146,000 of 1,146,000" in why
-    _tick(models / "narrow-int8", results.V6_TICK_BUDGET + 1, "v6")
+    _tick(models / "narrow-int8", shipping_rules.V6_TICK_BUDGET + 1, "v6")
     assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
 
 
