@@ -165,20 +165,12 @@ impl Renderer {
             usage: READ_TWICE,
             mapped_at_creation: false,
         });
-        let light_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("light"),
-            layout: &layouts.light,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: light.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: light.as_entire_binding(),
-                },
-            ],
-        });
+        let light_group = target::bind_group(
+            &device,
+            "light",
+            &layouts.light,
+            &[light.as_entire_binding(), light.as_entire_binding()],
+        );
 
         let static_mesh = upload(&device, "static scene", &static_scene(field, goal_depth));
         let ball_mesh = upload(&device, "ball", &ball_mesh(field.ball_diameter / 2.0));

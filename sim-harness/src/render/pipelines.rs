@@ -44,20 +44,11 @@ impl Pipelines {
         );
         let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("light"),
-            entries: &[
-                read_twice_entry(
-                    0,
-                    wgpu::ShaderStages::FRAGMENT,
-                    size_of::<LightUniform>(),
-                    false,
-                ),
-                read_twice_entry(
-                    1,
-                    wgpu::ShaderStages::FRAGMENT,
-                    size_of::<LightUniform>(),
-                    true,
-                ),
-            ],
+            entries: &read_twice_entries(
+                0,
+                wgpu::ShaderStages::FRAGMENT,
+                size_of::<LightUniform>(),
+            ),
         });
         let lit_pipeline = render_pipeline(
             device,
@@ -65,23 +56,15 @@ impl Pipelines {
             include_str!("scene_lit.wgsl"),
             &[&camera_layout, &model_layout, &light_layout],
         );
+        let [effects_uniform, effects_storage] =
+            read_twice_entries(2, wgpu::ShaderStages::COMPUTE, size_of::<CameraEffects>());
         let effects_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("effects"),
             entries: &[
                 image_entry(),
                 packed_entry(),
-                read_twice_entry(
-                    2,
-                    wgpu::ShaderStages::COMPUTE,
-                    size_of::<CameraEffects>(),
-                    false,
-                ),
-                read_twice_entry(
-                    3,
-                    wgpu::ShaderStages::COMPUTE,
-                    size_of::<CameraEffects>(),
-                    true,
-                ),
+                effects_uniform,
+                effects_storage,
             ],
         });
         let effects_pipeline = compute_pipeline(
@@ -254,15 +237,15 @@ pub(super) const READ_TWICE: wgpu::BufferUsages = wgpu::BufferUsages::UNIFORM
     .union(wgpu::BufferUsages::STORAGE)
     .union(wgpu::BufferUsages::COPY_DST);
 
-/// One of the two bindings of a [`READ_TWICE`] buffer of `size` bytes.
-pub(super) fn read_twice_entry(
-    binding: u32,
+/// The two bindings of a [`READ_TWICE`] buffer of `size` bytes: the uniform one at `first`,
+/// the read-only storage alias at `first + 1`.
+pub(super) fn read_twice_entries(
+    first: u32,
     visibility: wgpu::ShaderStages,
     size: usize,
-    storage: bool,
-) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
+) -> [wgpu::BindGroupLayoutEntry; 2] {
+    [false, true].map(|storage| wgpu::BindGroupLayoutEntry {
+        binding: first + u32::from(storage),
         visibility,
         ty: wgpu::BindingType::Buffer {
             ty: if storage {
@@ -274,7 +257,7 @@ pub(super) fn read_twice_entry(
             min_binding_size: wgpu::BufferSize::new(size as u64),
         },
         count: None,
-    }
+    })
 }
 
 /// The resolved image a compute pass reads (binding 0).
