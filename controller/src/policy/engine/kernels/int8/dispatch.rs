@@ -1,0 +1,127 @@
+//! Which int8 kernel a CPU runs, and the layout each kernel wants.
+// The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
+#![allow(unsafe_code)]
+
+use super::WeightOutOfRange;
+use super::panels::QuadPanels;
+use super::reference::largest_portable;
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+use super::{
+    avx2::{largest_avx2, largest_avx2_pairs},
+    ssse3::largest_ssse3_any,
+};
+
+/// Whether a kernel tests each group of sixteen inputs and skips the groups that are all
+/// zero with their weights. The same sums either way; the test costs a few instructions a
+/// group and pays where whole groups of zeros are common (after ReLU and max-pooling, and in
+/// a dense layer's features, about 40 % zeros), not in a camera's pixels, where it almost
+/// never skips (callgrind, V5, narrow int8 CNN on the test pattern: none of the 12,000
+/// first-layer groups a tick).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ZeroGroups {
+    Skip,
+    Compute,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Int8Kernel(Kind);
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Portable,
+    Ssse3,
+    /// The SSSE3 kernels with SSE4.1's `pmaxsd` for the maxima (the V6).
+    Sse41,
+    Avx2,
+}
+
+impl Int8Kernel {
+    pub(crate) const PORTABLE: Self = Self(Kind::Portable);
+
+    /// SSSE3's kernel where this CPU has SSSE3, else the portable one.
+    pub(crate) fn ssse3() -> Self {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        if std::arch::is_x86_feature_detected!("ssse3") {
+            return Self(Kind::Ssse3);
+        }
+        Self::PORTABLE
+    }
+
+    /// The SSSE3 kernels with SSE4.1's `pmaxsd` where this CPU has SSE4.1, else
+    /// [`Self::ssse3`].
+    pub(crate) fn sse41() -> Self {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        if std::arch::is_x86_feature_detected!("ssse3")
+            && std::arch::is_x86_feature_detected!("sse4.1")
+        {
+            return Self(Kind::Sse41);
+        }
+        Self::ssse3()
+    }
+
+    /// AVX2's kernel where this CPU has AVX2, else the widest it has.
+    pub(crate) fn avx2() -> Self {
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Self(Kind::Avx2);
+        }
+        Self::sse41()
+    }
+
+    pub(crate) fn name(self) -> &'static str {
+        match self.0 {
+            Kind::Portable => "portable",
+            Kind::Ssse3 => "ssse3",
+            Kind::Sse41 => "sse4.1",
+            Kind::Avx2 => "avx2",
+        }
+    }
+
+    /// `rows`, `[out][in]`, laid out for this kernel: panels of 16 outputs, or on AVX2
+    /// panels of 32 where the layer has more than 16 outputs and [`QuadPanels::pairs`]
+    /// where it has at most 16 (a 32-wide panel of a 16-output layer would be half zeros),
+    /// and on SSSE3 one panel of 8 where it has at most 8 (of 4 where at most 4).
+    pub(crate) fn lay_out(
+        self,
+        rows: &[i8],
+        outputs: usize,
+        inputs: usize,
+    ) -> Result<QuadPanels, WeightOutOfRange> {
+        match self.0 {
+            Kind::Avx2 if outputs > 16 => QuadPanels::new(rows, outputs, inputs, 32),
+            Kind::Avx2 => QuadPanels::pairs(rows, outputs, inputs),
+            Kind::Ssse3 | Kind::Sse41 if outputs <= 4 => QuadPanels::new(rows, outputs, inputs, 4),
+            Kind::Ssse3 | Kind::Sse41 if outputs <= 8 => QuadPanels::new(rows, outputs, inputs, 8),
+            _ => QuadPanels::new(rows, outputs, inputs, 16),
+        }
+    }
+
+    /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers for each cell of `acc`,
+    /// `x` holding each cell's whole rows of [`QuadPanels::padded_inputs`] bytes one after
+    /// the other ([`largest_portable`]); `weights` laid out for this kernel
+    /// ([`Self::lay_out`]; each kernel checks its layout). One row is a plain product.
+    #[inline]
+    pub(crate) fn largest(
+        self,
+        x: &[u8],
+        weights: &QuadPanels,
+        acc: &mut [i32],
+        zeros: ZeroGroups,
+    ) {
+        match self.0 {
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected, a `Kind::Sse41`
+            // only where SSE4.1 was too; each kernel checks its layout.
+            Kind::Ssse3 | Kind::Sse41 => unsafe {
+                largest_ssse3_any(x, weights, acc, zeros, self.0 == Kind::Sse41)
+            },
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; layout checked.
+            Kind::Avx2 if weights.pairs => unsafe { largest_avx2_pairs(x, weights, acc, zeros) },
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: as above; 32 wide.
+            Kind::Avx2 => unsafe { largest_avx2(x, weights, acc, zeros) },
+            _ => largest_portable(x, weights, acc),
+        }
+    }
+}
