@@ -129,7 +129,7 @@ impl Isa {
         match self {
             Self::Portable | Self::Sse2 => Int8Kernel::PORTABLE,
             Self::Ssse3 => Int8Kernel::ssse3(),
-            Self::Sse42 => Int8Kernel::sse41(),
+            Self::Sse42 => Int8Kernel::ssse3_pmaxsd(),
             Self::Avx2Fma | Self::Avx512 => Int8Kernel::avx2(),
         }
     }

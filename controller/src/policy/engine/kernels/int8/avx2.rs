@@ -47,7 +47,7 @@ macro_rules! avx2_group {
     }};
 }
 
-/// [`largest_portable`] with AVX2 (`vpmaddubsw`, `vpmaddwd`): panels of 32 outputs in four
+/// [`u8s8_max_product_scalar`] with AVX2 (`vpmaddubsw`, `vpmaddwd`): panels of 32 outputs in four
 /// registers; a group of sixteen input bytes copied to both 128-bit halves and each quad
 /// spread over all lanes with `vpshufd`, so one spread serves 32 outputs' four products.
 ///
@@ -55,7 +55,7 @@ macro_rules! avx2_group {
 /// The CPU must have AVX2; `weights.width()` must be 32.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "avx2")]
-pub(crate) unsafe fn largest_avx2(
+pub(crate) unsafe fn u8s8_max_product_32c_avx2(
     x: &[u8],
     weights: &QuadPanels,
     acc: &mut [i32],
@@ -111,7 +111,7 @@ pub(crate) unsafe fn largest_avx2(
     }
 }
 
-/// [`largest_portable`] with AVX2 for layers of at most 16 outputs ([`QuadPanels::pairs`]):
+/// [`u8s8_max_product_scalar`] with AVX2 for layers of at most 16 outputs ([`QuadPanels::pairs`]):
 /// two rows at once, one per 128-bit half, so each `vpmaddubsw` computes four outputs' four
 /// products for both rows, where 128-bit code on one row leaves half of every instruction
 /// unused. A last row without a partner is paired with itself (the largest is the same).
@@ -123,7 +123,7 @@ pub(crate) unsafe fn largest_avx2(
 /// The CPU must have AVX2; `weights` must be laid out by [`QuadPanels::pairs`].
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 #[target_feature(enable = "avx2")]
-pub(crate) unsafe fn largest_avx2_pairs(
+pub(crate) unsafe fn u8s8_max_product_2x16c_avx2(
     x: &[u8],
     weights: &QuadPanels,
     acc: &mut [i32],

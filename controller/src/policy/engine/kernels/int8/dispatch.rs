@@ -4,11 +4,11 @@
 
 use super::WeightOutOfRange;
 use super::panels::QuadPanels;
-use super::reference::largest_portable;
+use super::reference::u8s8_max_product_scalar;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 use super::{
-    avx2::{largest_avx2, largest_avx2_pairs},
-    ssse3::largest_ssse3_any,
+    avx2::{u8s8_max_product_2x16c_avx2, u8s8_max_product_32c_avx2},
+    ssse3::u8s8_max_product_ssse3,
 };
 
 /// Whether a kernel tests each group of sixteen inputs and skips the groups that are all
@@ -49,7 +49,7 @@ impl Int8Kernel {
 
     /// The SSSE3 kernels with SSE4.1's `pmaxsd` where this CPU has SSE4.1, else
     /// [`Self::ssse3`].
-    pub(crate) fn sse41() -> Self {
+    pub(crate) fn ssse3_pmaxsd() -> Self {
         #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
         if std::arch::is_x86_feature_detected!("ssse3")
             && std::arch::is_x86_feature_detected!("sse4.1")
@@ -65,7 +65,7 @@ impl Int8Kernel {
         if std::arch::is_x86_feature_detected!("avx2") {
             return Self(Kind::Avx2);
         }
-        Self::sse41()
+        Self::ssse3_pmaxsd()
     }
 
     pub(crate) fn name(self) -> &'static str {
@@ -98,7 +98,7 @@ impl Int8Kernel {
 
     /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers for each cell of `acc`,
     /// `x` holding each cell's whole rows of [`QuadPanels::padded_inputs`] bytes one after
-    /// the other ([`largest_portable`]); `weights` laid out for this kernel
+    /// the other ([`u8s8_max_product_scalar`]); `weights` laid out for this kernel
     /// ([`Self::lay_out`]; each kernel checks its layout). One row is a plain product.
     #[inline]
     pub(crate) fn largest(
@@ -113,15 +113,17 @@ impl Int8Kernel {
             // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected, a `Kind::Sse41`
             // only where SSE4.1 was too; each kernel checks its layout.
             Kind::Ssse3 | Kind::Sse41 => unsafe {
-                largest_ssse3_any(x, weights, acc, zeros, self.0 == Kind::Sse41)
+                u8s8_max_product_ssse3(x, weights, acc, zeros, self.0 == Kind::Sse41)
             },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; layout checked.
-            Kind::Avx2 if weights.pairs => unsafe { largest_avx2_pairs(x, weights, acc, zeros) },
+            Kind::Avx2 if weights.pairs => unsafe {
+                u8s8_max_product_2x16c_avx2(x, weights, acc, zeros)
+            },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: as above; 32 wide.
-            Kind::Avx2 => unsafe { largest_avx2(x, weights, acc, zeros) },
-            _ => largest_portable(x, weights, acc),
+            Kind::Avx2 => unsafe { u8s8_max_product_32c_avx2(x, weights, acc, zeros) },
+            _ => u8s8_max_product_scalar(x, weights, acc),
         }
     }
 }

@@ -25,7 +25,7 @@
 //! registers and the call, its checks and the set-up are paid once per row of outputs. On
 //! AVX2, layers of at most 16 outputs are laid out in [`QuadPanels::pairs`] and computed two
 //! rows at a time, one per 128-bit half; on SSSE3 (both Naos), layers of at most 8 outputs in
-//! panels of 8 ([`largest_ssse3_8`]), not half-empty panels of 16.
+//! panels of 8 ([`u8s8_max_product_8c_ssse3`]), not half-empty panels of 16.
 //!
 //! History, measured with callgrind (cross/README.md): one call per pixel with the window
 //! read in place (a segment per kernel row) and one quad per broadcast cost 8.07 M

@@ -81,7 +81,7 @@ impl QuadPanels {
         })
     }
 
-    /// At most 16 outputs laid out for [`largest_avx2_pairs`]: one 32-wide panel in which
+    /// At most 16 outputs laid out for [`u8s8_max_product_2x16c_avx2`]: one 32-wide panel in which
     /// column `8k + j` holds output `4k + j % 4`, so each 256-bit vector of a quad holds four
     /// outputs' weights in both 128-bit halves, one half per row of a pair.
     pub(crate) fn pairs(

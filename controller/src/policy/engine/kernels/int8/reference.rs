@@ -6,7 +6,7 @@ use super::panels::QuadPanels;
 /// the other, any CPU: the reference the vector kernels equal. Where `acc` holds several
 /// cells of `outputs` sums, `x` holds each cell's rows in turn, the same number for each
 /// (one call for a row of max-pool cells or of pixels: the checks and the set-up once).
-pub(crate) fn largest_portable(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
+pub(crate) fn u8s8_max_product_scalar(x: &[u8], weights: &QuadPanels, acc: &mut [i32]) {
     assert!(!weights.pairs, "int8 weights laid out for AVX2's pairs");
     let (cells, rows) = weights.cells_in(x, acc);
     let (width, row) = (weights.width, weights.padded_inputs());

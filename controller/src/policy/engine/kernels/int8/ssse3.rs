@@ -245,7 +245,7 @@ macro_rules! merge_largest {
 /// `TAIL` quads only (`TAIL` must be [`QuadPanels::tail_quads`]), the row's sums merged into
 /// the running maxima ([`merge_largest`]: with `pmaxsd` where `SSE41`), the cells, panels and
 /// rows walked by [`ssse3_panels`]; the zero-group test as `zeros` says. The three widths
-/// differ only in these arguments; [`largest_ssse3_any`] picks the function for a layout.
+/// differ only in these arguments; [`u8s8_max_product_ssse3`] picks the function for a layout.
 /// (The macro is defined on every target, so that its uses resolve; the functions it writes
 /// are x86's.)
 macro_rules! ssse3_kernel {
@@ -313,7 +313,7 @@ macro_rules! ssse3_row {
 /// # Safety
 /// The CPU must have SSSE3, and SSE4.1 where `sse41`.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-pub(crate) unsafe fn largest_ssse3_any(
+pub(crate) unsafe fn u8s8_max_product_ssse3(
     x: &[u8],
     weights: &QuadPanels,
     acc: &mut [i32],
@@ -332,17 +332,17 @@ pub(crate) unsafe fn largest_ssse3_any(
         };
     }
     match (weights.width, sse41) {
-        (4, false) => tails!(largest_ssse3_4, false),
-        (4, true) => tails!(largest_ssse3_4, true),
-        (8, false) => tails!(largest_ssse3_8, false),
-        (8, true) => tails!(largest_ssse3_8, true),
-        (_, false) => tails!(largest_ssse3, false),
-        (_, true) => tails!(largest_ssse3, true),
+        (4, false) => tails!(u8s8_max_product_4c_ssse3, false),
+        (4, true) => tails!(u8s8_max_product_4c_ssse3, true),
+        (8, false) => tails!(u8s8_max_product_8c_ssse3, false),
+        (8, true) => tails!(u8s8_max_product_8c_ssse3, true),
+        (_, false) => tails!(u8s8_max_product_16c_ssse3, false),
+        (_, true) => tails!(u8s8_max_product_16c_ssse3, true),
     }
 }
 
 ssse3_kernel!(
-    /// [`largest_portable`] with SSSE3 (`pmaddubsw`, `pmaddwd`) on 128-bit vectors, panels of
+    /// [`u8s8_max_product_scalar`] with SSSE3 (`pmaddubsw`, `pmaddwd`) on 128-bit vectors, panels of
     /// 16 outputs held in four registers. The inputs are read a group (sixteen bytes) at a
     /// time: one load, with [`ZeroGroups::Skip`] one test that skips sixteen zero inputs, and
     /// `pshufd` to spread each quad over the lanes, which also gives `pmaddubsw` the copy it
@@ -351,19 +351,19 @@ ssse3_kernel!(
     /// of the V5's eight registers. Each row's sums then go into the running maxima in memory
     /// ([`merge_largest`]). The row loop is in assembly ([`row_asm`]; callgrind, int8 CNN
     /// forward: V5 6.46 M -> 5.57 M, V6 4.86 M -> 4.64 M).
-    largest_ssse3, products16, "256", 16, 4, [s0, s1, s2, s3]
+    u8s8_max_product_16c_ssse3, products16, "256", 16, 4, [s0, s1, s2, s3]
 );
 
 ssse3_kernel!(
-    /// [`largest_ssse3`] for layers of at most 8 outputs: one panel of 8 in two registers
+    /// [`u8s8_max_product_16c_ssse3`] for layers of at most 8 outputs: one panel of 8 in two registers
     /// ([`products8`]).
-    largest_ssse3_8, products8, "128", 8, 2, [s0, s1]
+    u8s8_max_product_8c_ssse3, products8, "128", 8, 2, [s0, s1]
 );
 
 ssse3_kernel!(
-    /// [`largest_ssse3`] for layers of at most 4 outputs: one panel of 4 in one register
+    /// [`u8s8_max_product_16c_ssse3`] for layers of at most 4 outputs: one panel of 4 in one register
     /// ([`products4`]).
-    largest_ssse3_4, products4, "64", 4, 1, [s0]
+    u8s8_max_product_4c_ssse3, products4, "64", 4, 1, [s0]
 );
 
 /// The cell, panel and row loops of the SSSE3 kernels: for each cell of `acc` and each panel

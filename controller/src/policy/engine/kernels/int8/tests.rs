@@ -6,10 +6,10 @@ use std::arch::x86::*;
 use std::arch::x86_64::*;
 
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-use super::avx2::{largest_avx2, largest_avx2_pairs};
-use super::reference::largest_portable;
+use super::avx2::{u8s8_max_product_2x16c_avx2, u8s8_max_product_32c_avx2};
+use super::reference::u8s8_max_product_scalar;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-use super::ssse3::largest_ssse3_any;
+use super::ssse3::u8s8_max_product_ssse3;
 use super::*;
 use crate::policy::engine::layout::Grid;
 
@@ -61,9 +61,9 @@ fn every_kernel(
     for width in [4, 8, 16] {
         let weights = QuadPanels::new(rows, outputs, inputs, width).expect("in range");
         let mut acc = vec![0; outputs];
-        largest_portable(&padded, &weights, &mut acc);
+        u8s8_max_product_scalar(&padded, &weights, &mut acc);
         let mut second = vec![0; outputs];
-        largest_portable(&pad(&flipped(xs)), &weights, &mut second);
+        u8s8_max_product_scalar(&pad(&flipped(xs)), &weights, &mut second);
         acc.extend(second);
         results.push((format!("portable {width}"), acc));
     }
@@ -83,7 +83,7 @@ fn every_kernel(
                     let weights = QuadPanels::new(rows, outputs, inputs, width).expect("in range");
                     let mut acc = vec![0; 2 * outputs];
                     // SAFETY: SSSE3 detected, and SSE4.1 where `sse41`.
-                    unsafe { largest_ssse3_any(&two_cells, &weights, &mut acc, zeros, sse41) };
+                    unsafe { u8s8_max_product_ssse3(&two_cells, &weights, &mut acc, zeros, sse41) };
                     let set = if sse41 { "sse4.1" } else { "ssse3" };
                     results.push((format!("{set}, panels of {width}, {zeros:?}"), acc));
                 }
@@ -92,7 +92,7 @@ fn every_kernel(
                 let weights = QuadPanels::new(rows, outputs, inputs, 32).expect("in range");
                 let mut acc = vec![0; 2 * outputs];
                 // SAFETY: AVX2 detected; width 32.
-                unsafe { largest_avx2(&two_cells, &weights, &mut acc, zeros) };
+                unsafe { u8s8_max_product_32c_avx2(&two_cells, &weights, &mut acc, zeros) };
                 results.push((format!("avx2, {zeros:?}"), acc));
                 // Two rows at a time: the layout for at most 16 outputs, in pieces of 16.
                 let mut acc = Vec::new();
@@ -105,7 +105,7 @@ fn every_kernel(
                         let weights =
                             QuadPanels::pairs(&piece_rows, columns, inputs).expect("in range");
                         // SAFETY: AVX2 detected; laid out in pairs.
-                        unsafe { largest_avx2_pairs(x, &weights, out, zeros) };
+                        unsafe { u8s8_max_product_2x16c_avx2(x, &weights, out, zeros) };
                     }
                     acc.extend(cell);
                 }
@@ -280,7 +280,7 @@ fn several_cells_in_one_call_equal_one_call_each() {
             for kernel in [
                 Int8Kernel::PORTABLE,
                 Int8Kernel::ssse3(),
-                Int8Kernel::sse41(),
+                Int8Kernel::ssse3_pmaxsd(),
                 Int8Kernel::avx2(),
             ] {
                 let weights = kernel.lay_out(&rows, outputs, inputs).expect("in range");
@@ -415,11 +415,11 @@ fn a_row_count_the_weights_do_not_divide_is_refused() {
     let mut acc = [0; 3];
     for x in [vec![0u8; 31], vec![0u8; 33], Vec::new()] {
         let refused = std::panic::catch_unwind(|| {
-            largest_portable(&x, &weights, &mut acc.clone());
+            u8s8_max_product_scalar(&x, &weights, &mut acc.clone());
         });
         assert!(refused.is_err(), "{} bytes", x.len());
     }
-    largest_portable(&[1; 64], &weights, &mut acc);
+    u8s8_max_product_scalar(&[1; 64], &weights, &mut acc);
     assert_eq!(acc, [20; 3]);
 }
 
@@ -487,7 +487,7 @@ fn pooled_windows_of_a_convolution_equal_the_integer_definition() {
         for kernel in [
             Int8Kernel::PORTABLE,
             Int8Kernel::ssse3(),
-            Int8Kernel::sse41(),
+            Int8Kernel::ssse3_pmaxsd(),
             Int8Kernel::avx2(),
         ] {
             let weights = kernel
