@@ -1,6 +1,6 @@
-//! Convolutions and max-pools: a Conv (with the ReLU and the pool after it folded in where
-//! the graph has them, by Winograd where the instruction set's kernels take the layer) and a
-//! MaxPool on its own.
+//! Convolutions and max-pools: a Conv (with the ReLU after it folded in where the graph has
+//! it) and a MaxPool, which [`super::pool_fusion`] folds into the convolution before it
+//! where it can, else a step of its own.
 
 use super::*;
 
@@ -174,94 +174,8 @@ impl Lowerer {
             (w - kernel[1]) / strides[1] + 1,
         ];
         let to = self.buffer(elements(&[out[0], out[1], c])?)?;
-        if let Some(index) = self.fold_pool_into_int8_conv(
-            input,
-            buffer,
-            [[kernel[0], kernel[1]], [strides[0], strides[1]], out],
-            to,
-        ) {
-            self.producer.insert(output.to_owned(), index);
-            self.keep_grid(buffer, to);
-            return self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
-        }
-        // A pool right after a convolution that only it reads is folded into that step
-        // (`ConvPool`), where its windows do not overlap vertically.
-        let fold = match self.producer.get(input) {
-            Some(&index) if strides[0] >= kernel[0] && self.single_reader(input) => {
-                match &self.steps[index] {
-                    Step::Conv {
-                        shape, pool: None, ..
-                    } => Some((
-                        index,
-                        elements(&[kernel[0], shape.out[1], shape.out_channels])?,
-                    )),
-                    _ => None,
-                }
-            }
-            _ => None,
-        };
-        if let Some((index, scratch_len)) = fold {
-            let scratch = self.buffer(scratch_len)?;
-            let fit = self.winograd;
-            let mut winograd_buffers = None;
-            if let Step::Conv {
-                padded,
-                weights,
-                shape,
-                pool,
-                winograd,
-                out: conv_out,
-                ..
-            } = &mut self.steps[index]
-            {
-                *conv_out = to;
-                *pool = Some(ConvPool {
-                    kernel: [kernel[0], kernel[1]],
-                    stride: [strides[0], strides[1]],
-                    out,
-                    scratch,
-                });
-                let (ic, oc) = (shape.in_channels, shape.out_channels);
-                let row = shape.padded_width * ic;
-                let padded_rows = self.buffers[*padded].len() / row.max(1);
-                let layer = fit.filter(|fit| fit.takes(ic, oc)).and_then(|_| {
-                    winograd::Layer::new(
-                        [shape.kernel, shape.stride],
-                        [[kernel[0], kernel[1]], [strides[0], strides[1]]],
-                        [shape.padded_width, padded_rows],
-                        [ic, oc],
-                        out,
-                    )
-                });
-                if let Some(layer) = layer {
-                    // The rows past the padding that the last tiles read: zero, as the
-                    // border is (the padding step writes only the map's own rows).
-                    let needed = layer.padded_rows_needed() * row;
-                    if self.buffers[*padded].len() < needed {
-                        self.allocated += needed - self.buffers[*padded].len();
-                        self.buffers[*padded].resize(needed, 0.0);
-                    }
-                    *winograd = Some(WinogradConv {
-                        layer,
-                        weights: winograd::transform_weights(weights.as_slice(), ic, oc),
-                        transformed: 0,
-                        products: 0,
-                    });
-                    winograd_buffers = Some(layer.scratch());
-                }
-            }
-            if let Some([transformed_len, products_len]) = winograd_buffers {
-                let (transformed, products) =
-                    (self.buffer(transformed_len)?, self.buffer(products_len)?);
-                if let Step::Conv {
-                    winograd: Some(winograd),
-                    ..
-                } = &mut self.steps[index]
-                {
-                    winograd.transformed = transformed;
-                    winograd.products = products;
-                }
-            }
+        let pool = [[kernel[0], kernel[1]], [strides[0], strides[1]], out];
+        if let Some(index) = self.fuse_pool(input, buffer, pool, to)? {
             self.producer.insert(output.to_owned(), index);
             return self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc);
         }
@@ -278,47 +192,5 @@ impl Lowerer {
             },
         );
         self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc)
-    }
-
-    /// Folds a max-pool into the int8 convolution that made `buffer` (`QuantizedPool`) where
-    /// only the pool reads it, its windows do not overlap, and the epilogue is monotonic
-    /// (every scale positive and finite, every bias finite: then the largest sum's epilogue
-    /// is the largest epilogue). The convolution then writes the pooled map into `to`, and
-    /// its full-size output is given back. The convolution's step where it folded.
-    fn fold_pool_into_int8_conv(
-        &mut self,
-        input: &str,
-        buffer: BufferId,
-        [kernel, strides, out]: [[usize; 2]; 3],
-        to: BufferId,
-    ) -> Option<usize> {
-        let &index = self.producer.get(input)?;
-        if !self.single_reader(input) || strides[0] < kernel[0] || strides[1] < kernel[1] {
-            return None;
-        }
-        let Step::QuantizedConv(conv) = &mut self.steps[index] else {
-            return None;
-        };
-        let monotonic = conv
-            .epilogue
-            .scales
-            .iter()
-            .all(|s| s.is_finite() && *s > 0.0)
-            && conv.epilogue.bias.iter().all(|b| b.is_finite());
-        if conv.out != buffer || conv.pool.is_some() || !monotonic {
-            return None;
-        }
-        conv.pool = Some(QuantizedPool {
-            kernel,
-            stride: strides,
-            out,
-        });
-        // Room for a row of pool cells' windows, copied one after the other, and their sums.
-        conv.windows = vec![0; kernel[0] * kernel[1] * conv.window.padded_len() * out[1]];
-        conv.sums = vec![0; conv.weights.outputs() * out[1]];
-        conv.out = to;
-        let full = std::mem::take(&mut self.buffers[buffer]);
-        self.allocated = self.allocated.saturating_sub(full.len());
-        Some(index)
     }
 }

@@ -36,6 +36,7 @@ use super::plan::{BinaryOp, ConvPool, QuantizedPool, ReduceOp, Step, WinogradCon
 mod conv;
 mod dense;
 mod elementwise;
+mod pool_fusion;
 mod quantized;
 mod recurrent;
 mod shape;
