@@ -2,7 +2,7 @@
 
 mod support;
 
-use dribble_controller::policy::{OnnxPolicy, PolicyKind};
+use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy, PolicyKind};
 use dribble_controller::{Policy, PolicyInput};
 use support::{fixture, reference};
 
@@ -91,4 +91,81 @@ fn rcnn_state_is_carried_between_steps() {
         first, second,
         "the same frame twice must differ through the state"
     );
+}
+
+/// The CNN fixture with `standardise = true` in its manifest: what the controller computes
+/// before the network (`policy::network_input`). Both engines see a thumbnail pair and the
+/// same pair under a gain and offset (`2p + 10`, exact in u8 for these pixels) as one input,
+/// while the plain fixture tells them apart.
+#[test]
+fn a_standardised_policy_ignores_a_cameras_gain_and_offset() {
+    let directory = support::scratch_copy("cnn", "standardised");
+    let manifest = directory.join("policy.toml");
+    let text = std::fs::read_to_string(&manifest).expect("fixture manifest");
+    let standardised = text.replacen(
+        "[normalisation]\n",
+        "[normalisation]\nstandardise = true\n",
+        1,
+    );
+    assert_ne!(
+        text, standardised,
+        "the fixture has a [normalisation] table"
+    );
+    std::fs::write(&manifest, standardised).expect("write manifest");
+    let reference = reference("cnn");
+    let (top, bottom) = &reference.thumbnails[0];
+    let (mut brighter_top, mut brighter_bottom) = (top.clone(), bottom.clone());
+    for pixel in brighter_top
+        .as_bytes_mut()
+        .iter_mut()
+        .chain(brighter_bottom.as_bytes_mut())
+    {
+        *pixel = (*pixel / 3) * 2 + 10;
+    }
+    let (mut dim_top, mut dim_bottom) = (top.clone(), bottom.clone());
+    for pixel in dim_top
+        .as_bytes_mut()
+        .iter_mut()
+        .chain(dim_bottom.as_bytes_mut())
+    {
+        *pixel /= 3;
+    }
+    let command = |policy: &mut OnnxPolicy, top, bottom| {
+        let output = policy
+            .step(PolicyInput { top, bottom })
+            .expect("a step of the fixture");
+        [output.forward, output.left, output.turn]
+    };
+    for engine in [Engine::Compiled, Engine::Tract] {
+        let options = EngineOptions {
+            engine,
+            ..EngineOptions::default()
+        };
+        let (mut policy, loaded) = OnnxPolicy::load_with(&manifest, options)
+            .unwrap_or_else(|error| panic!("loading the standardised fixture: {error}"));
+        assert!(loaded.normalisation.standardise);
+        let dim = command(&mut policy, &dim_top, &dim_bottom);
+        let bright = command(&mut policy, &brighter_top, &brighter_bottom);
+        for (d, b) in dim.iter().zip(&bright) {
+            assert!(
+                (d - b).abs() <= 1e-4,
+                "{engine:?}: {dim:?} against {bright:?}"
+            );
+        }
+        let (mut plain, _) =
+            OnnxPolicy::load_with(&support::fixture("cnn").join("policy.toml"), options)
+                .expect("the plain fixture");
+        let (plain_dim, plain_bright) = (
+            command(&mut plain, &dim_top, &dim_bottom),
+            command(&mut plain, &brighter_top, &brighter_bottom),
+        );
+        assert!(
+            plain_dim
+                .iter()
+                .zip(&plain_bright)
+                .any(|(d, b)| (d - b).abs() > 1e-3),
+            "{engine:?}: the plain fixture sees the gain: {plain_dim:?} against {plain_bright:?}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(directory);
 }

@@ -3,6 +3,8 @@ manifest. `export_policy` is what training calls at the end."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import onnx
@@ -10,7 +12,31 @@ import torch
 
 from . import contract
 from .manifest import Manifest, TrainingRecord
-from .networks import CNN, HCNN, RCNN, ModalCNN, RCNNStep
+from .networks import CNN, HCNN, RCNN, CameraFeatures, ModalCNN, RCNNStep
+
+
+def standardises(model: torch.nn.Module) -> bool:
+    """Whether the model standardises its thumbnails (`CameraFeatures.standardise_input`)."""
+    return any(m.standardise_input for m in model.modules() if isinstance(m, CameraFeatures))
+
+
+def set_standardise(model: torch.nn.Module, standardise: bool) -> None:
+    """Makes every camera branch of `model` standardise its inputs, or not."""
+    for module in model.modules():
+        if isinstance(module, CameraFeatures):
+            module.standardise_input = standardise
+
+
+@contextmanager
+def network_only(model: torch.nn.Module) -> Iterator[None]:
+    """The network without the input standardisation the controller does before it: what
+    the ONNX file holds."""
+    standardise = standardises(model)
+    set_standardise(model, False)
+    try:
+        yield
+    finally:
+        set_standardise(model, standardise)
 
 
 def _example_inputs() -> tuple[torch.Tensor, torch.Tensor]:
@@ -66,6 +92,14 @@ def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training
     """Writes the model's ONNX file(s) and `policy.toml` into `directory`; returns the manifest."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    standardise = standardises(model)
+    with network_only(model):
+        manifest = _export_networks(model, directory, training)
+    manifest.standardise = standardise
+    return manifest.write(directory)
+
+
+def _export_networks(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training: TrainingRecord) -> Manifest:
     if isinstance(model, HCNN):
         networks = [f"cnn{k}.onnx" for k in range(len(model.experts))]
         for expert, name in zip(model.experts, networks):
@@ -79,4 +113,4 @@ def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training
         manifest = Manifest("cnn", ["policy.onnx"], training)
     else:
         raise TypeError(f"cannot export a {type(model).__name__}")
-    return manifest.write(directory)
+    return manifest

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dribble_models import contract
 from dribble_models.cluster import seed_range
 from dribble_models.gym_env import NaoDribbleEnv, find_dribble
 
@@ -51,14 +52,15 @@ class OnnxPolicy:
         options.inter_op_num_threads = 1
         network = manifest_path.parent / manifest["networks"][0]
         self.session = onnxruntime.InferenceSession(str(network), options)
-        self.scale = np.float32(manifest["normalisation"]["scale"])
+        self.scale = float(manifest["normalisation"]["scale"])
+        self.standardise = bool(manifest["normalisation"].get("standardise", False))
         self.top = manifest["inputs"]["top"]["name"]
         self.bottom = manifest["inputs"]["bottom"]["name"]
 
     def __call__(self, observation) -> np.ndarray:
         feed = {
-            self.top: observation["top"][None, None].astype(np.float32) * self.scale,
-            self.bottom: observation["bottom"][None, None].astype(np.float32) * self.scale,
+            self.top: contract.network_input(observation["top"][None, None], self.standardise, self.scale),
+            self.bottom: contract.network_input(observation["bottom"][None, None], self.standardise, self.scale),
         }
         return self.session.run(None, feed)[0][0]
 

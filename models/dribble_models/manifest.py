@@ -46,6 +46,8 @@ class Manifest:
     lstm_units: int | None = None
     opset: int = contract.OPSET
     command_scale: dict[str, float] = field(default_factory=lambda: dict(contract.COMMAND_SCALE))
+    # Each thumbnail standardised by the controller before the network (contract.network_input).
+    standardise: bool = False
 
     def to_toml(self) -> str:
         lines = [
@@ -55,9 +57,21 @@ class Manifest:
             f"opset = {self.opset}",
             f"networks = [{', '.join(_string(n) for n in self.networks)}]",
             "",
-            "# The network sees value * scale of each u8 thumbnail pixel.",
-            "[normalisation]",
-            f"scale = {_float(contract.INPUT_SCALE)}",
+            *(
+                [
+                    "# The network sees each u8 thumbnail standardised on its own:",
+                    f"# (pixel - mean) / max(spread, {contract.STANDARDISE_FLOOR_LEVELS:g}) in pixel levels; scale cancels.",
+                    "[normalisation]",
+                    f"scale = {_float(contract.INPUT_SCALE)}",
+                    "standardise = true",
+                ]
+                if self.standardise
+                else [
+                    "# The network sees value * scale of each u8 thumbnail pixel.",
+                    "[normalisation]",
+                    f"scale = {_float(contract.INPUT_SCALE)}",
+                ]
+            ),
             "",
             "[inputs]",
             f'top = {{ name = "{contract.TOP_INPUT}", shape = [1, 1, {contract.TOP_SHAPE[0]}, {contract.TOP_SHAPE[1]}] }}',

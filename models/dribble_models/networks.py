@@ -61,16 +61,34 @@ def camera_branch(first: int, second: int) -> nn.Sequential:
     )
 
 
+def standardised(images: torch.Tensor) -> torch.Tensor:
+    """Scaled thumbnails [B,1,H,W] (`pixel * INPUT_SCALE`, perhaps augmented) standardised each
+    on its own: `(x - mean) / max(spread, floor)`, the controller's rule in scaled units
+    (`contract.network_input` in pixel levels; the scale cancels)."""
+    mean = images.mean(dim=(-2, -1), keepdim=True)
+    spread = images.var(dim=(-2, -1), keepdim=True, unbiased=False).sqrt()
+    floor = contract.STANDARDISE_FLOOR_LEVELS * contract.INPUT_SCALE
+    return (images - mean) / spread.clamp(min=floor)
+
+
 class CameraFeatures(nn.Module):
-    """Both camera branches, flattened and concatenated: [B,1,120,160], [B,1,60,80] -> [B,2560]."""
+    """Both camera branches, flattened and concatenated: [B,1,120,160], [B,1,60,80] -> [B,2560].
+
+    `standardise_input` (not a parameter: the manifest's `standardise` carries it) makes the
+    branches standardise their scaled inputs first, as the controller does before the network
+    for a standardised policy; export turns it off (`export.network_only`), since the ONNX
+    network receives what the controller already standardised."""
 
     def __init__(self, filters: Filters = PAPER_FILTERS) -> None:
         super().__init__()
         self.filters = filters
         self.top = camera_branch(filters[0], filters[1])
         self.bottom = camera_branch(filters[2], filters[3])
+        self.standardise_input = False
 
     def forward(self, top: torch.Tensor, bottom: torch.Tensor) -> torch.Tensor:
+        if self.standardise_input:
+            top, bottom = standardised(top), standardised(bottom)
         return torch.cat([self.top(top), self.bottom(bottom)], dim=1)
 
 

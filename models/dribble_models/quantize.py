@@ -121,11 +121,11 @@ def rows_hash(rows: list[tuple[int, int]]) -> str:
     return hashlib.sha256(json.dumps(rows).encode()).hexdigest()
 
 
-def _inputs(episode: dataset.Episode, t: int) -> dict[str, np.ndarray]:
-    scale = np.float32(contract.INPUT_SCALE)
+def _inputs(episode: dataset.Episode, t: int, standardise: bool) -> dict[str, np.ndarray]:
+    """What the controller feeds the network at row `t` (`contract.network_input`)."""
     return {
-        contract.TOP_INPUT: episode.top[t][None, None].astype(np.float32) * scale,
-        contract.BOTTOM_INPUT: episode.bottom[t][None, None].astype(np.float32) * scale,
+        contract.TOP_INPUT: contract.network_input(episode.top[t][None, None], standardise),
+        contract.BOTTOM_INPUT: contract.network_input(episode.bottom[t][None, None], standardise),
     }
 
 
@@ -146,11 +146,11 @@ class Frames(CalibrationDataReader):
         self.position = 0
 
 
-def feeds_for(kind: str, network: Path, train: dataset.Dataset, rows: list[tuple[int, int]], units: int) -> list[dict]:
+def feeds_for(kind: str, network: Path, train: dataset.Dataset, rows: list[tuple[int, int]], units: int, standardise: bool = False) -> list[dict]:
     """Each row's network inputs; the R-CNN's with the state its float network carries there."""
     by_seed = {e.seed: e for e in train.episodes}
     if kind != "rcnn":
-        return [_inputs(by_seed[s], t) for s, t in rows]
+        return [_inputs(by_seed[s], t, standardise) for s, t in rows]
     session = ort.InferenceSession(str(network), providers=["CPUExecutionProvider"])
     wanted: dict[int, set[int]] = {}
     for s, t in rows:
@@ -161,7 +161,7 @@ def feeds_for(kind: str, network: Path, train: dataset.Dataset, rows: list[tuple
         h = np.zeros((1, 1, units), np.float32)
         c = np.zeros((1, 1, units), np.float32)
         for t in range(max(wanted[s]) + 1):
-            feed = _inputs(episode, t) | {contract.H_INPUT: h, contract.C_INPUT: c}
+            feed = _inputs(episode, t, standardise) | {contract.H_INPUT: h, contract.C_INPUT: c}
             if t in wanted[s]:
                 feeds.append(dict(feed))
             _, h, c = session.run([contract.COMMAND_OUTPUT, contract.H_OUTPUT, contract.C_OUTPUT], feed)
@@ -299,7 +299,8 @@ def quantize_policy(policy: Path, train_dir: Path, out: Path, frames: int = 256,
             centroids = np.asarray(manifest["gating"]["centroids"], np.float32)
             routed = [(s, t) for s, t in rows if nearest_cluster(by_seed[s].top[t], by_seed[s].bottom[t], centroids) == index]
             network_rows = routed if len(routed) >= 16 else rows
-        feeds.append(feeds_for(kind, policy / name, train, network_rows, units))
+        standardise = bool(manifest.get("normalisation", {}).get("standardise", False))
+        feeds.append(feeds_for(kind, policy / name, train, network_rows, units, standardise))
     calibration = {
         "calibration_dataset_hash": train.content_hash,
         "calibration_frames": len(rows),

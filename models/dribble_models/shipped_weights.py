@@ -104,6 +104,15 @@ def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
     if extra:
         raise ShippedWeightsError(f"{manifest_path}: initializers {', '.join(extra[:4])} are no parameter of this network")
     load_strictly(model, initializers, manifest_path)
+    from .export import set_standardise
+
+    set_standardise(model, standardised_manifest(manifest_path))
+
+
+def standardised_manifest(path: Path) -> bool:
+    """Whether the model at `path` has the controller standardise its thumbnails."""
+    manifest = tomllib.loads(manifest_of(path).read_text())
+    return bool(manifest.get("normalisation", {}).get("standardise", False))
 
 
 def load_pruned_weights(model: nn.Module, path: Path) -> dict[str, list[int]]:

@@ -64,10 +64,10 @@ from tqdm import tqdm
 from . import contract
 from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .seed_ranges import refuse_reserved
-from .export import export_policy
+from .export import export_policy, set_standardise, standardises
 from .gating import fit_centroids
 from .manifest import TrainingRecord
-from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, Filters, ModalCNN
+from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of
 from .stalls import CutReport, StallRule, cut_all
 
@@ -214,6 +214,34 @@ class CameraAugment:
 
 # ---------------------------------------------------------------------------------------
 # Prediction as the robot runs each kind
+
+
+def typical_level(thumbnails: np.ndarray, sample: np.ndarray) -> tuple[float, float]:
+    """The mean over `sample` rows of each thumbnail's own mean and spread, in pixel levels."""
+    pixels = thumbnails[sample].astype(np.float64)
+    means = pixels.mean(axis=(1, 2))
+    spreads = np.maximum(pixels.std(axis=(1, 2)), contract.STANDARDISE_FLOOR_LEVELS)
+    return float(means.mean()), float(spreads.mean())
+
+
+@torch.no_grad()
+def fold_typical_level(model: nn.Module, rows: "Rows", rng: np.random.Generator, sample_rows: int = 4096) -> None:
+    """Re-expresses the first convolution of each camera branch of a model trained on
+    `pixel / 255` for standardised input: with a thumbnail's typical mean `m` and spread `s`,
+    `pixel / 255 = (z * s + m) / 255`, so `W' = W * s / 255` and `b' = b + sum(W) * m / 255`
+    give the old first layer's answer on a typical thumbnail (exactly where mean and spread
+    are typical, away from the zero-padded border). A start, not an equivalence: training
+    then learns the rest."""
+    sample = np.sort(rng.choice(len(rows.top), size=min(sample_rows, len(rows.top)), replace=False))
+    for module in model.modules():
+        if not isinstance(module, CameraFeatures):
+            continue
+        for branch, thumbnails in ((module.top, rows.top), (module.bottom, rows.bottom)):
+            mean, spread = typical_level(thumbnails, sample)
+            first = branch[0]
+            scale = float(contract.INPUT_SCALE)
+            first.bias += first.weight.sum(dim=(1, 2, 3)) * (mean * scale)
+            first.weight *= spread * scale
 
 
 def device_of(model: nn.Module) -> torch.device:
@@ -465,8 +493,16 @@ class Training:
             centroids = fit_centroids(features[sample], args.clusters, seed=args.seed)
             self.model = HCNN(centroids)
             self.clusters = nearest(features, self.model.centroids)
+        self.folded_start = False
         if args.init_from is not None:
             self.start_from(args.init_from)
+            if args.standardise_input and not standardises(self.model) and self.rows is not None:
+                self.folded_start = True
+                # The start saw `pixel / 255`: its first layers re-expressed for standardised
+                # input at the training rows' typical level and spread.
+                fold_typical_level(self.model, self.rows, np.random.default_rng([args.seed, 3]))
+        # After the start: the run's choice, whatever the model it started from did.
+        set_standardise(self.model, args.standardise_input)
         if args.prune_from is not None:
             if self.kind != "cnn" or args.modes != 1:
                 raise DatasetError("--prune-from starts a one-output CNN (--kind cnn, --modes 1)")
@@ -535,6 +571,7 @@ class Training:
             # Only where it differs from the paper's one output, so that older checkpoints resume.
             **({"modes": a.modes} if a.modes != 1 else {}),
             **({"camera_augment": a.camera_augment} if a.camera_augment > 0 else {}),
+            **({"standardise_input": "folded start" if self.folded_start else True} if a.standardise_input else {}),
             **({"filters": a.filters.text()} if a.filters != PAPER_FILTERS else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
             **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
@@ -811,6 +848,10 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
     parts.append("augmented" if args.augment else "no augmentation")
     if args.camera_augment > 0:
         parts.append(f"camera conditions augmented on {args.camera_augment:.0%} of the rows (CameraAugment: exposure, contrast, vignetting, blur, noise)")
+    if args.standardise_input:
+        parts.append("each thumbnail standardised on its own before the network ([normalisation] standardise)")
+        if args.init_from is not None:
+            parts.append("a start trained on pixel / 255 has its first layers re-expressed at the training rows' typical level and spread (fold_typical_level)")
     if args.balance_phases:
         parts.append("phase-balanced sampling")
     if args.add_dataset:
@@ -862,6 +903,7 @@ class TrainingConfig:
     modes: int = 1
     augment: bool = False
     camera_augment: float = 0.0
+    standardise_input: bool = False
     balance_phases: bool = False
     threads: int = 1
     device: str = "auto"
@@ -906,6 +948,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--modes", type=int, default=1, help="CNN: command hypotheses with a learned choice among them (beyond the paper; 1 is the paper's CNN)")
     parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
     parser.add_argument("--camera-augment", type=float, default=0.0, metavar="SHARE", help="apply what the simulator's camera conditions do (exposure, contrast, vignetting, blur, noise) to this share of the training rows (0: none; CameraAugment)")
+    parser.add_argument("--standardise-input", action="store_true", help="the controller standardises each thumbnail on its own before the network (mean 0, spread 1, at least 4 levels: [normalisation] standardise in policy.toml), so exposure, gain and contrast change nothing the network sees (beyond the paper)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")
     parser.add_argument(

@@ -138,3 +138,53 @@ def test_onnx_has_the_contract_names_shapes_and_opset_in_one_file(tmp_path, kind
     assert manifest["inputs"]["top"] == {"name": "top", "shape": [1, 1, 120, 160]}
     assert manifest["command_scale"] == contract.COMMAND_SCALE
     assert ("recurrent" in manifest) == (kind == "rcnn")
+
+
+def test_the_controllers_standardisation_is_the_trainers(rng):
+    """`contract.network_input` (the controller's arithmetic) and the trainer's
+    `networks.standardised` on scaled thumbnails give the same values, a flat thumbnail
+    divided by the floor; a gain and offset of the pixels changes nothing."""
+    from dribble_models.networks import standardised
+
+    pixels = rng.integers(0, 256, (3, 120, 160), dtype=np.uint8)
+    pixels[2] = 100
+    pixels[2, 0, :4] = 104
+    controller = contract.network_input(pixels, standardise=True)
+    trainer = standardised(torch.from_numpy(contract.network_input(pixels)[:, None]))[:, 0].numpy()
+    assert np.abs(controller - trainer).max() < 1e-4
+    assert np.allclose(controller[:2].mean(axis=(1, 2)), 0, atol=1e-5) and np.allclose(controller[:2].std(axis=(1, 2)), 1, atol=1e-5)
+    # Four pixels of 104 among 100s: a spread of about 0.03 levels, so the floor of 4 divides.
+    assert controller[2, 0, 0] == pytest.approx((104 - (100 + 16 / (120 * 160))) / 4, abs=1e-6)
+    dim = (pixels[:2] // 3 + 20).astype(np.uint8)
+    bright = (dim * 2 + 15).astype(np.uint8)
+    assert np.abs(contract.network_input(dim, True) - contract.network_input(bright, True)).max() < 1e-5
+
+
+def test_a_standardised_policy_exports_the_network_alone(tmp_path, rng):
+    """The manifest says `standardise = true`; the ONNX file holds no standardisation: fed
+    what the controller computes, it answers as the PyTorch model fed scaled pixels; loaded
+    back as a start, the model standardises again."""
+    import tomllib
+
+    from dribble_models.export import set_standardise, standardises
+    from dribble_models.shipped_weights import load_shipped_weights
+
+    model = CNN(Filters(4, 8, 4, 8)).eval()
+    set_standardise(model, True)
+    manifest = export_policy(model, tmp_path, RECORD)
+    assert standardises(model), "export leaves the model as it found it"
+    assert tomllib.loads(Path(manifest).read_text())["normalisation"]["standardise"] is True
+    runtime = session(tmp_path / "policy.onnx")
+    tops, bottoms = synthetic_pairs(rng, 4)
+    for top_u8, bottom_u8 in zip(tops, bottoms):
+        top, bottom = to_network_input(top_u8, bottom_u8)
+        with torch.no_grad():
+            expected = model(top, bottom).numpy()
+        feed = {"top": contract.network_input(top_u8[None, None], True), "bottom": contract.network_input(bottom_u8[None, None], True)}
+        (got,) = runtime.run(None, feed)
+        assert np.abs(got - expected).max() < 1e-4
+    restarted = CNN(Filters(4, 8, 4, 8))
+    load_shipped_weights(restarted, tmp_path, "cnn")
+    assert standardises(restarted)
+    plain = CNN(Filters(4, 8, 4, 8)).eval()
+    assert "standardise" not in tomllib.loads(Path(export_policy(plain, tmp_path / "plain", RECORD)).read_text())["normalisation"]

@@ -377,3 +377,36 @@ def test_the_options_become_a_typed_frozen_configuration():
     assert config.epochs > 0 and config.add_dataset == (Path("a"), Path("b")) and config.window == 100
     with pytest.raises(FrozenInstanceError):
         config.lr = 1.0  # type: ignore[misc]
+
+
+def test_a_folded_start_answers_as_before_on_a_typical_thumbnail(rng):
+    """`fold_typical_level` re-expresses a `pixel / 255` model's first layers for standardised
+    input: on thumbnails whose own mean and spread are the rows' typical ones, the folded,
+    standardising model's first convolution answers as the old one did (away from the
+    zero-padded border, where the two paddings differ)."""
+    from dribble_models.export import set_standardise
+    from dribble_models.networks import standardised
+    from dribble_models.train import Rows, fold_typical_level
+
+    def rows_like(top_base, bottom_base, n=6):
+        # Every row the same pattern: its mean and spread are the typical ones.
+        return Rows(
+            top=np.repeat(top_base[None], n, axis=0),
+            bottom=np.repeat(bottom_base[None], n, axis=0),
+            command=np.zeros((n, 3), np.float32),
+            phase=np.zeros(n, np.uint8),
+        )
+
+    top = rng.integers(40, 200, (120, 160), dtype=np.uint8)
+    bottom = rng.integers(60, 220, (60, 80), dtype=np.uint8)
+    old = CNN(Filters(4, 8, 4, 8)).eval()
+    new = CNN(Filters(4, 8, 4, 8)).eval()
+    new.load_state_dict(old.state_dict())
+    fold_typical_level(new, rows_like(top, bottom), np.random.default_rng(0))
+    set_standardise(new, True)
+    scaled = torch.from_numpy(top[None, None].astype(np.float32) / 255)
+    with torch.no_grad():
+        before = old.features.top[0](scaled)[..., 2:-2, 2:-2]
+        after = new.features.top[0](standardised(scaled))[..., 2:-2, 2:-2]
+    assert torch.allclose(before, after, atol=1e-4), float((before - after).abs().max())
+    assert not torch.allclose(old.features.top[0].weight, new.features.top[0].weight)

@@ -21,7 +21,10 @@ use tract_onnx::prelude::{TValue, Tensor};
 
 use super::commitment::HypothesisCommitment;
 use super::engine::{CompiledNetwork, Isa};
-use super::manifest::{BOTTOM_SHAPE, COMMAND_SHAPE, PolicyKind, PolicyManifest, TOP_SHAPE};
+use super::manifest::{
+    BOTTOM_SHAPE, COMMAND_SHAPE, Normalisation, PolicyKind, PolicyManifest, TOP_SHAPE,
+};
+use super::network_input::write_network_input;
 use super::onnx_network::{Interface, OnnxNetwork, Port, zero_tensor};
 use super::{Policy, PolicyError, PolicyInput, PolicyLoadError, PolicyOutput};
 use crate::histogram::gating_feature;
@@ -96,12 +99,12 @@ impl std::fmt::Display for EngineReport {
     }
 }
 
-/// The network inputs made from the thumbnails: `pixel * scale` as f32.
+/// The network inputs made from the thumbnails as the manifest's normalisation says.
 #[derive(Debug)]
 struct ThumbnailTensors {
     top: Arc<Tensor>,
     bottom: Arc<Tensor>,
-    scale: f32,
+    normalisation: Normalisation,
 }
 
 impl ThumbnailTensors {
@@ -109,14 +112,13 @@ impl ThumbnailTensors {
         Ok(Self {
             top: zero_tensor(path, &TOP_SHAPE)?,
             bottom: zero_tensor(path, &BOTTOM_SHAPE)?,
-            scale: manifest.normalisation.scale,
+            normalisation: manifest.normalisation.clone(),
         })
     }
 
-    /// Writes the scaled thumbnails in place. tract has dropped its references after the
+    /// Writes the normalised thumbnails in place. tract has dropped its references after the
     /// last run, so `make_mut` finds the tensors unshared and copies nothing.
     fn fill(&mut self, input: PolicyInput<'_>) -> Result<(), PolicyError> {
-        let scale = self.scale;
         for (tensor, pixels) in [
             (&mut self.top, input.top.as_bytes()),
             (&mut self.bottom, input.bottom.as_bytes()),
@@ -127,9 +129,7 @@ impl ThumbnailTensors {
             let values = view
                 .as_slice_mut::<f32>()
                 .map_err(|error| PolicyError::Inference(format!("{error:#}")))?;
-            for (value, &pixel) in values.iter_mut().zip(pixels) {
-                *value = f32::from(pixel) * scale;
-            }
+            write_network_input(&self.normalisation, pixels, values);
         }
         Ok(())
     }
@@ -204,7 +204,7 @@ enum Network {
     Compiled {
         network: Box<CompiledNetwork>,
         names: PortNames,
-        scale: f32,
+        normalisation: Normalisation,
     },
 }
 
@@ -274,7 +274,7 @@ impl Network {
                     let network = Self::Compiled {
                         network: Box::new(compiled),
                         names,
-                        scale: manifest.normalisation.scale,
+                        normalisation: manifest.normalisation.clone(),
                     };
                     return Ok((network, report));
                 }
@@ -358,7 +358,7 @@ impl Network {
             Self::Compiled {
                 network,
                 names,
-                scale,
+                normalisation,
             } => {
                 for (name, pixels) in [
                     (&names.top, input.top.as_bytes()),
@@ -367,9 +367,7 @@ impl Network {
                     let values = network.input_mut(name).ok_or(PolicyError::Engine(
                         "a thumbnail input of the plan is missing",
                     ))?;
-                    for (value, &pixel) in values.iter_mut().zip(pixels) {
-                        *value = f32::from(pixel) * *scale;
-                    }
+                    write_network_input(normalisation, pixels, values);
                 }
                 // The plan ran once at load (`engine_agrees_with_tract`) and its shapes do not
                 // change; a panic here all the same is a failed inference (a stop), not a
@@ -440,7 +438,7 @@ fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
 }
 
 /// Runs `compiled` and tract's `network` on the same two pseudo-random inputs (thumbnails
-/// of random pixels through the manifest's scale; random recurrent states in [-1, 1]) and
+/// of random pixels through the manifest's normalisation; random recurrent states in [-1, 1]) and
 /// compares every output the controller reads. Leaves the compiled plan's recurrent inputs
 /// at zero, as at an episode's start.
 fn engine_agrees_with_tract(
@@ -450,7 +448,6 @@ fn engine_agrees_with_tract(
     manifest: &PolicyManifest,
     units: usize,
 ) -> Result<(), String> {
-    let scale = manifest.normalisation.scale;
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
     let mut next = move || {
         state ^= state << 13;
@@ -458,13 +455,19 @@ fn engine_agrees_with_tract(
         state ^= state << 17;
         state
     };
+    let input_of = |pixels: Vec<u8>| -> Vec<f32> {
+        let mut values = vec![0.0; pixels.len()];
+        write_network_input(&manifest.normalisation, &pixels, &mut values);
+        values
+    };
     for probe in 0..2 {
-        let top: Vec<f32> = (0..TOP_SHAPE.iter().product::<usize>())
-            .map(|_| f32::from((next() >> 56) as u8) * scale)
-            .collect();
-        let bottom: Vec<f32> = (0..BOTTOM_SHAPE.iter().product::<usize>())
-            .map(|_| f32::from((next() >> 56) as u8) * scale)
-            .collect();
+        let mut random_pixels = |shape: &[usize]| -> Vec<u8> {
+            (0..shape.iter().product::<usize>())
+                .map(|_| (next() >> 56) as u8)
+                .collect()
+        };
+        let top = input_of(random_pixels(&TOP_SHAPE));
+        let bottom = input_of(random_pixels(&BOTTOM_SHAPE));
         let mut random_state = || -> Vec<f32> {
             (0..units)
                 .map(|_| (next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0)

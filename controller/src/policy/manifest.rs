@@ -101,11 +101,18 @@ pub struct TensorSpec {
     pub shape: Vec<usize>,
 }
 
+/// How a thumbnail's u8 pixels become the network's input (see [`super::network_input`]).
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Normalisation {
     /// The network sees `pixel * scale` (1/255 in DESIGN.md).
     pub scale: f32,
+    /// When true, the network sees each thumbnail standardised instead: its own mean
+    /// subtracted and divided by its own spread (at least
+    /// [`super::network_input::STANDARDISE_FLOOR_LEVELS`]), so a camera's gain, exposure
+    /// and contrast leave the input unchanged. `scale` then cancels out. Absent: false.
+    #[serde(default)]
+    pub standardise: bool,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, Deserialize)]

@@ -12,6 +12,7 @@ pub mod file_watch;
 mod learned;
 pub mod manifest;
 pub mod model_limits;
+pub mod network_input;
 mod onnx_network;
 
 pub use brightness::BrightnessPolicy;
