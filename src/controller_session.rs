@@ -3,6 +3,7 @@
 //! memory (started here unless one already runs in the domain), or the same controller code
 //! in a thread of this process over channels.
 
+use dribble_controller::run_statistics::RunStatistics;
 use std::fs::{File, OpenOptions};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -280,15 +281,20 @@ fn engine_in_log(log: &str) -> Option<&str> {
         })
 }
 
-/// The statistics a stopped controller printed (its log's lines that are not log events).
+/// The statistics a stopped controller printed, read from its machine line.
 fn print_controller_statistics(log: &Path) {
     let Ok(text) = std::fs::read_to_string(log) else {
         return;
     };
     println!();
-    println!("controller statistics ({}):", log.display());
-    for line in text.lines().filter(|l| !l.starts_with("ts=")) {
-        println!("  {line}");
+    match RunStatistics::from_log(&text) {
+        Ok(statistics) => {
+            println!("controller statistics ({}):", log.display());
+            for line in statistics.to_string().lines() {
+                println!("  {line}");
+            }
+        }
+        Err(why) => println!("controller statistics ({}): {why}", log.display()),
     }
 }
 

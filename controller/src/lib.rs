@@ -23,6 +23,7 @@ pub mod log_output;
 pub mod motion_command;
 pub mod policy;
 pub mod realtime;
+pub mod run_statistics;
 pub mod shutdown;
 pub mod speed_command;
 pub mod test_pattern;

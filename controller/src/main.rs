@@ -16,6 +16,7 @@ use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_controller::policy::{BrightnessPolicy, OnnxPolicy};
 use dribble_controller::policy::{Engine, EngineOptions};
 use dribble_controller::realtime::{self, RealtimeRequest};
+use dribble_controller::run_statistics::RunStatistics;
 use dribble_controller::test_pattern::{PatternCameras, TestPattern};
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::tick_stats::TickStats;
@@ -547,42 +548,13 @@ fn dry_run(
     Ok(())
 }
 
+/// The run's statistics: three lines for people, one for programs (`RunStatistics`).
 fn print_statistics<P: Policy, C: Clock>(control: &ControlLoop<P, C>) -> io::Result<()> {
-    let counters = control.counters();
-    let sync = control.sync_counters();
-    writeln!(
-        io::stdout(),
-        "ticks {}: {} new, {} repeated, {} stops ({} for cameras), {} policy failures, {} non-finite outputs",
-        counters.ticks,
-        counters.new_commands,
-        counters.repeated_commands,
-        counters.stops,
-        counters.camera_stops,
-        counters.policy_failures,
-        counters.non_finite_outputs
-    )?;
-    writeln!(
-        io::stdout(),
-        "frames accepted top {} bottom {}; duplicates {:?}, out of order {:?}, invalid {}, stamped after their tick {}; deadline misses {}",
-        sync.accepted[0],
-        sync.accepted[1],
-        sync.duplicates,
-        sync.out_of_order,
-        counters.invalid_frames,
-        counters.future_frames,
-        counters.deadline_misses
-    )?;
-    match control.tick_stats().summary() {
-        Some(summary) => writeln!(
-            io::stdout(),
-            "tick time: p50 {:.1?} p99 {:.1?} max {:.1?}; {} overruns of the {:?} budget",
-            summary.median,
-            summary.p99,
-            summary.max,
-            summary.overruns,
-            summary.budget
-        )?,
-        None => writeln!(io::stdout(), "tick time: no ticks ran")?,
-    }
-    Ok(())
+    let statistics = RunStatistics::new(
+        control.counters(),
+        control.sync_counters(),
+        control.tick_stats().summary(),
+    );
+    writeln!(io::stdout(), "{statistics}")?;
+    writeln!(io::stdout(), "{}", statistics.machine_line())
 }

@@ -80,6 +80,10 @@ fn run_answers_lock_step_ticks_and_stops_on_sigterm() {
     let stdout = String::from_utf8_lossy(&output.stdout);
     assert!(stdout.contains("ticks 1: 1 new"), "{stdout}");
     assert!(stdout.contains("tick time: p50"), "{stdout}");
+    let statistics = dribble_controller::run_statistics::RunStatistics::from_log(&stdout)
+        .unwrap_or_else(|why| panic!("{why}: {stdout}"));
+    assert_eq!((statistics.ticks, statistics.new_commands), (1, 1));
+    assert!(statistics.tick_time.is_some());
     let logged: Vec<String> = lines_rx.try_iter().collect();
     assert!(
         logged

@@ -142,14 +142,3 @@ pub(crate) fn apply_realtime(controller_priority: u8) {
         tracing::warn!(event = "realtime_refused", setting = %refusal, action = "the soak runs on without it");
     }
 }
-
-/// The lines a controller prints about itself as it stops: ticks, frames, its tick time.
-pub(crate) fn controller_statistics(log: &str) -> Vec<&str> {
-    log.lines()
-        .filter(|line| {
-            ["ticks ", "frames accepted ", "tick time: "]
-                .iter()
-                .any(|start| line.starts_with(start))
-        })
-        .collect()
-}

@@ -9,8 +9,8 @@ use crate::soak::faults::FaultReport;
 use serde_json::json;
 
 use super::command_watch::{CommandWatch, Second, quantile};
-use super::controller_process::controller_statistics;
 use crate::commands::soak::SoakArgs;
+use dribble_controller::run_statistics::RunStatistics;
 
 /// Every criterion the soak missed, in words (empty: it passed).
 pub(crate) fn failures(
@@ -149,10 +149,18 @@ pub(crate) fn summarise(
     // The controller's own account, printed as it stops (SIGTERM): ticks, frames and its tick
     // time from inside the loop.
     let controller_log = fs::read_to_string(args.out.join("controller.log")).unwrap_or_default();
-    let controller_statistics = controller_statistics(&controller_log);
-    for line in &controller_statistics {
-        println!("soak: the controller says: {line}");
-    }
+    let controller_statistics = match RunStatistics::from_log(&controller_log) {
+        Ok(statistics) => {
+            for line in statistics.to_string().lines() {
+                println!("soak: the controller says: {line}");
+            }
+            serde_json::to_value(&statistics)?
+        }
+        Err(why) => {
+            println!("soak: {why}");
+            serde_json::Value::Null
+        }
+    };
     let summary = json!({
         "faults": fault_json,
         "controller_statistics": controller_statistics,
