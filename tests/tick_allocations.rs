@@ -190,6 +190,8 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
         "policy/cnn-narrow-observable-int8",
         // Its 4-output float layers run the blocked portable convolution on every set.
         "policy/cnn-narrower-distilled-more-observable",
+        // Its thumbnails standardised before the network ([normalisation] standardise).
+        "policy/cnn-conditions-standardised",
         shipped.as_str(),
         robot.as_str(),
     ] {
