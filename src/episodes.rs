@@ -46,6 +46,15 @@ pub fn time_limit(text: &str) -> Result<f32, String> {
     }
 }
 
+/// `--driver teacher`: a scripted teacher drives, not a policy. `expert`, the word of the
+/// first datasets and scripts, means the same.
+pub const TEACHER_DRIVER: &str = "teacher";
+
+/// Whether a `--driver` names the scripted teacher rather than a policy's `policy.toml`.
+pub fn is_teacher_driver(driver: &str) -> bool {
+    driver == TEACHER_DRIVER || driver == "expert"
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -66,5 +75,11 @@ mod tests {
         assert_eq!("5..8".parse(), Ok(Episodes(5..8)));
         assert!("8..5".parse::<Episodes>().is_err());
         assert!("ten".parse::<Episodes>().is_err());
+    }
+
+    #[test]
+    fn teacher_and_the_older_expert_name_the_scripted_driver() {
+        assert!(super::is_teacher_driver("teacher") && super::is_teacher_driver("expert"));
+        assert!(!super::is_teacher_driver("models/policy/cnn/policy.toml"));
     }
 }

@@ -122,10 +122,10 @@ pub(crate) fn open_index(
             // Resuming: the new episodes must come from the same simulator and expert.
             let mut differences = Vec::new();
             let recorded_teacher = index.teacher.as_deref().unwrap_or("paper");
-            if recorded_teacher != args.expert.name() {
+            if recorded_teacher != args.teacher.name() {
                 differences.push(format!(
                     "teacher: {recorded_teacher} there, {} now",
-                    args.expert
+                    args.teacher
                 ));
             }
             let recorded_conditions = index.conditions.as_deref().unwrap_or("clean");
@@ -157,7 +157,7 @@ pub(crate) fn open_index(
             episodes: Vec::new(),
             content_hash: None,
             driver,
-            teacher: Some(args.expert.name().into()),
+            teacher: Some(args.teacher.name().into()),
             conditions: (!args.condition.is_clean()).then(|| args.condition.to_string()),
         },
     })

@@ -27,7 +27,7 @@ a node needs only Python with Ray, Mesa's Vulkan driver and the libraries the bi
 shipped policy must then be named by a relative path, which every node recreates, so that the
 recorded ``dataset.json`` names it as a serial run does. Arguments after ``--`` go to
 ``dribble record``/``eval`` unchanged (``--driver``, ``--label-with``, ``--beta``,
-``--expert``, ``--isa``, ``--time-limit``, ...).
+``--teacher``, ``--isa``, ``--time-limit``, ...).
 """
 
 from __future__ import annotations
@@ -96,12 +96,12 @@ def driver_of(arguments: list[str]) -> str:
             return arguments[i + 1]
         if argument.startswith("--driver="):
             return argument.split("=", 1)[1]
-    return "expert"
+    return "teacher"
 
 
 def shipped_policy(driver: str) -> dict[str, bytes]:
-    """The files of the driving policy's directory, by relative path (none for the expert)."""
-    if driver == "expert":
+    """The files of the driving policy's directory, by relative path (none for the teacher)."""
+    if driver in ("teacher", "expert"):
         return {}
     path = Path(driver)
     if path.is_absolute() or ".." in path.parts:

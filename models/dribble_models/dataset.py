@@ -52,7 +52,7 @@ class Dataset:
     content_hash: str
     episodes: list[Episode]
     # Who labelled the rows: "paper" (the expert on ground truth; also every dataset recorded
-    # before `dribble record --expert`) or "observable" (DESIGN.md, "Teachers").
+    # before `dribble record --teacher`) or "observable" (DESIGN.md, "Teachers").
     teacher: str = "paper"
 
     @property

@@ -121,7 +121,7 @@ class NaoDribbleEnv(gym.Env):
         command = [
             self._binary or find_dribble(),
             "gym-server",
-            "--expert",
+            "--teacher",
             self.expert,
             "--time-limit",
             repr(self.time_limit_s),

@@ -117,8 +117,8 @@ def play_in_eval(driver: str, seeds, time_limit_s: float, expert: str = "paper")
             "--plot", str(Path(scratch) / "plot.png"), "--trajectories", str(trajectories),
             "--controller-log", str(Path(scratch) / "controller.log"),
         ]  # fmt: skip
-        if driver == "expert":
-            command += ["--expert", expert, "--render"]
+        if driver in ("teacher", "expert"):
+            command += ["--teacher", expert, "--render"]
         run = subprocess.run(command, capture_output=True, text=True)
         if run.returncode != 0:
             raise RuntimeError(f"dribble eval failed:\n{run.stdout}\n{run.stderr}")
@@ -189,7 +189,7 @@ def main(argv=None) -> int:
             lambda _, info: info["expert_command"].astype(np.float32),
             args.episodes, args.time_limit, args.expert,
         )  # fmt: skip
-        evaluation = play_in_eval("expert", args.episodes, args.time_limit, args.expert)
+        evaluation = play_in_eval("teacher", args.episodes, args.time_limit, args.expert)
     else:
         policy = OnnxPolicy(Path(args.policy))
         environment = play_in_environment(lambda o, _: policy(o), args.episodes, args.time_limit)

@@ -24,9 +24,9 @@ use dribble_sim::expert::Teacher;
 
 #[derive(Debug, Args)]
 pub struct EvalArgs {
-    /// `expert` for the scripted expert (ground truth), or the path of a policy's
-    /// `policy.toml` (it sees the rendered cameras).
-    #[arg(long, default_value = "expert")]
+    /// `teacher` for the scripted teacher that `--teacher` names (`expert` is accepted for
+    /// the same), or the path of a policy's `policy.toml` (it sees the rendered cameras).
+    #[arg(long, default_value = crate::episodes::TEACHER_DRIVER)]
     pub(crate) driver: String,
     /// `test` (seeds 10000..10019), `train` (0..99) or a seed range such as `10000..10005`.
     #[arg(long, default_value = "test")]
@@ -45,15 +45,15 @@ pub struct EvalArgs {
     /// Also write every episode's outcome and robot and ball paths (10 Hz) as JSON.
     #[arg(long)]
     pub(crate) trajectories: Option<PathBuf>,
-    /// Render the cameras even for the expert (slower; it does not look at them).
+    /// Render the cameras even for the teacher (slower; it does not look at them).
     #[arg(long)]
     pub(crate) render: bool,
-    /// Which teacher `--driver expert` is: `paper` (reads the ball's true position),
+    /// Which teacher `--driver teacher` is: `paper` (reads the ball's true position),
     /// `observable` (knows the ball only while a camera shows it, and where it last saw it) or
     /// `orbit` (the observable one, which also walks straight to the ball and circles it to the
     /// left until the top camera shows the target goal).
-    #[arg(long, default_value_t = Teacher::Paper)]
-    pub(crate) expert: Teacher,
+    #[arg(long, alias = "expert", default_value_t = Teacher::Paper)]
+    pub(crate) teacher: Teacher,
     /// Time limit per episode, simulated seconds (positive and finite).
     #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
     pub(crate) time_limit: f32,
@@ -84,7 +84,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         time_limit_s: args.time_limit,
         ..EpisodeConfig::default()
     };
-    let policy_path = (args.driver != "expert").then(|| PathBuf::from(&args.driver));
+    let policy_path =
+        (!crate::episodes::is_teacher_driver(&args.driver)).then(|| PathBuf::from(&args.driver));
     describe_driver(args, policy_path.as_deref())?;
     if !args.condition.is_clean() {
         println!("conditions: {}", args.condition);
@@ -173,9 +174,10 @@ fn run_settings(args: &EvalArgs, policy_path: Option<&Path>) -> anyhow::Result<R
     Ok(RunSettings {
         driver: match policy_path {
             Some(path) => RunSettings::policy_hash(path)?,
+            // The journals' word since the first evaluations: resumes keep matching.
             None => "expert".to_owned(),
         },
-        teacher: args.expert.name().to_owned(),
+        teacher: args.teacher.name().to_owned(),
         time_limit_s: args.time_limit,
         engine: format!("{:?}", args.controller.engine),
         isa: format!("{:?}", args.controller.isa),
@@ -186,7 +188,7 @@ fn run_settings(args: &EvalArgs, policy_path: Option<&Path>) -> anyhow::Result<R
 
 fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> anyhow::Result<()> {
     match policy_path {
-        None => match args.expert {
+        None => match args.teacher {
             Teacher::Paper => println!("driver: the paper's expert (ground truth)"),
             Teacher::Observable => println!(
                 "driver: the observable teacher (the ball only through its cameras, its own pose from ground truth)"

@@ -53,8 +53,8 @@ pub struct GymServerArgs {
     /// The teacher whose command for each observed state goes into `info`: `paper` (reads
     /// the ball's true position), `observable` (only what its cameras showed) or `orbit`
     /// (observable, and the goal's direction only while the top camera shows the goal).
-    #[arg(long, default_value_t = Teacher::Paper)]
-    expert: Teacher,
+    #[arg(long, alias = "expert", default_value_t = Teacher::Paper)]
+    teacher: Teacher,
     /// Time limit per episode, simulated seconds (positive and finite); the environment
     /// truncates there.
     #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
@@ -91,7 +91,7 @@ fn serve<R: Read, W: Write>(
 ) -> anyhow::Result<()> {
     let teacher = || {
         Expert::teaching(
-            args.expert,
+            args.teacher,
             ExpertConfig::default(),
             FieldGeometry::SPL,
             config.cameras,

@@ -28,8 +28,9 @@ use dribble_sim::expert::Teacher;
 /// Who labels the states a learned policy visits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Labeller {
-    /// The scripted expert, reading ground truth.
-    Expert,
+    /// The scripted teacher that `--teacher` names (`expert` is accepted for the same).
+    #[value(alias = "expert")]
+    Teacher,
 }
 
 #[derive(Debug, Args)]
@@ -44,9 +45,10 @@ pub struct RecordArgs {
     /// Time limit per episode, simulated seconds (positive and finite).
     #[arg(long, default_value_t = 90.0, value_parser = crate::episodes::time_limit)]
     pub(crate) time_limit: f32,
-    /// `expert` (it drives with ground truth), or the path of a policy's `policy.toml`: it
-    /// drives through its controller and `--label-with` labels the states it visits.
-    #[arg(long, default_value = "expert")]
+    /// `teacher` (the scripted teacher `--teacher` names drives; `expert` is accepted for the
+    /// same), or the path of a policy's `policy.toml`: it drives through its controller and
+    /// `--label-with` labels the states it visits.
+    #[arg(long, default_value = crate::episodes::TEACHER_DRIVER)]
     pub(crate) driver: String,
     /// Who labels a policy-driven episode's rows (needed with a policy `--driver`).
     #[arg(long, value_enum)]
@@ -55,14 +57,14 @@ pub struct RecordArgs {
     /// of the policy's (DAgger's β; drawn from a generator seeded by the episode).
     #[arg(long, default_value_t = 0.0)]
     pub(crate) beta: f64,
-    /// Which teacher drives (with `--driver expert`) or labels (with `--label-with
-    /// expert`): `paper`, the paper's expert, which reads the ball's true position; or
+    /// Which teacher drives (with `--driver teacher`) or labels (with `--label-with
+    /// teacher`): `paper`, the paper's expert, which reads the ball's true position; or
     /// `observable`, which knows the ball only while a camera shows it and where it last
     /// saw it (DESIGN.md, "Teachers"); or `orbit`, the observable one that also walks straight
     /// to the ball and circles it to the left until the top camera shows the target goal.
     /// Recorded in dataset.json.
-    #[arg(long, default_value_t = Teacher::Paper)]
-    pub(crate) expert: Teacher,
+    #[arg(long, alias = "expert", default_value_t = Teacher::Paper)]
+    pub(crate) teacher: Teacher,
     /// What the cameras see the episodes under: `clean`, NAME:SEVERITY[,...] (see `dribble
     /// eval --help`) or `randomized` (each episode draws its own conditions from its seed,
     /// never the unseen venue). Recorded in dataset.json, per episode.
@@ -109,7 +111,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         let setup = EpisodeSetup::from_seed(seed).under(args.condition);
         let mut recording = EpisodeRecording::default();
         let expert = Expert::teaching(
-            args.expert,
+            args.teacher,
             expert_config,
             FieldGeometry::SPL,
             config.cameras,
@@ -218,10 +220,10 @@ fn policy_driver(args: &RecordArgs) -> anyhow::Result<Option<(PathBuf, PolicyMan
     if !(0.0..=1.0).contains(&args.beta) {
         bail!("--beta {} is not a probability (0 to 1)", args.beta);
     }
-    if args.driver == "expert" {
+    if crate::episodes::is_teacher_driver(&args.driver) {
         if args.label_with.is_some() || args.beta != 0.0 {
             bail!(
-                "--label-with and --beta go with a policy --driver; the expert labels its own \
+                "--label-with and --beta go with a policy --driver; the teacher labels its own \
                  demonstrations"
             );
         }
@@ -229,17 +231,18 @@ fn policy_driver(args: &RecordArgs) -> anyhow::Result<Option<(PathBuf, PolicyMan
     }
     if args.label_with.is_none() {
         bail!(
-            "a policy --driver needs --label-with expert: the rows must hold the expert's \
+            "a policy --driver needs --label-with teacher: the rows must hold the teacher's \
              commands for the states the policy visits"
         );
     }
     let path = PathBuf::from(&args.driver);
     let manifest = PolicyManifest::load(&path)?;
     println!(
-        "driver: {} policy {} (trained on {:?}), labelled by the expert, beta {}, transport {}",
+        "driver: {} policy {} (trained on {:?}), labelled by the {} teacher, beta {}, transport {}",
         manifest.kind,
         path.display(),
         manifest.training.dataset,
+        args.teacher.name(),
         args.beta,
         args.controller.describe()
     );

@@ -94,7 +94,7 @@ pub(crate) fn play_here(
         };
         let driver = match policy_path {
             None => Driver::Expert(Expert::teaching(
-                args.expert,
+                args.teacher,
                 ExpertConfig::default(),
                 FieldGeometry::SPL,
                 config.cameras,
