@@ -91,14 +91,34 @@ def summarise_episode(episode: dict) -> dict:
     return summary
 
 
-def summarise(trajectories: dict) -> dict:
+def seed_range(text: str) -> range:
+    """`A..B`, the seeds A to B - 1 (as `dribble eval --episodes` writes them)."""
+    first, _, end = text.partition("..")
+    try:
+        seeds = range(int(first), int(end))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a seed range is A..B, not {text!r}") from None
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"{text} holds no seed")
+    return seeds
+
+
+def summarise(trajectories: dict, seeds: range | None = None) -> dict:
+    """The summary of every episode, or of those whose seed is in `seeds` (a paired look at
+    the first seeds of a longer run); a seed of `seeds` the file lacks is an error."""
     # The engine that ran the policy ("compiled (avx2+fma)", "tract"): absent from files
     # written before `dribble eval` recorded it, and null for the expert.
     # The conditions the episodes were seen under (`dribble eval --condition`): absent when
     # clean, and in files written before there were conditions.
+    episodes = trajectories["episodes"]
+    if seeds is not None:
+        episodes = [e for e in episodes if e["seed"] in seeds]
+        missing = sorted(set(seeds) - {e["seed"] for e in episodes})
+        if missing:
+            raise ValueError(f"the file holds no episode of the seeds {missing[:5]}")
     summary = {
         "engine": trajectories.get("engine"),
-        "episodes": [summarise_episode(e) for e in trajectories["episodes"]],
+        "episodes": [summarise_episode(e) for e in episodes],
     }
     if trajectories.get("conditions"):
         summary["conditions"] = trajectories["conditions"]
@@ -109,10 +129,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dribble_models.eval_summary", description=__doc__.split("\n\n")[0])
     parser.add_argument("trajectories", type=Path, help="the file `dribble eval --trajectories` wrote")
     parser.add_argument("summary", type=Path, help="where to write the summary (JSON)")
+    parser.add_argument("--seeds", type=seed_range, metavar="A..B", help="only the episodes of these seeds (every one of them must be in the file)")
     args = parser.parse_args(argv)
     try:
         trajectories = json.loads(args.trajectories.read_text())
-        summary = summarise(trajectories)
+        summary = summarise(trajectories, args.seeds)
     except (OSError, ValueError, KeyError, TypeError) as error:
         print(f"error: {args.trajectories} is not a `dribble eval --trajectories` file: {error}", file=sys.stderr)
         return 2

@@ -180,18 +180,27 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-long", "cnn-modal", "dagger",
         "cnn-narrow-distilled-more-observable-int8", "cnn-narrower-distilled-more-observable-int8")
 
 
+def selection_run_name(stem: str) -> str:
+    """A model's other selection runs by their file: `select_randomized` -> `randomized`,
+    `select20_clean` (its first 20 selection seeds) -> `clean-20`."""
+    head, _, conditions = stem.partition("_")
+    count = head.removeprefix("select")
+    return f"{conditions}-{count}" if count else conditions
+
+
 def selection_runs(directory: Path) -> str:
     """The closed loops on the selection seeds kept in `directory` (models/selection: one
     eval_summary JSON per model or DAgger iteration) and the models' runs under randomized
-    conditions (`models/policy/<name>/select_randomized.json`, named `<name>-randomized`),
+    conditions (`models/policy/<name>/select_randomized.json`, named `<name>-randomized`; a
+    run on the first N selection seeds, `selectN_<conditions>.json`, `<name>-<conditions>-N`),
     with their intervals, failure classes and median time to goal."""
     lines = [
         "| run | seeds | goals (95 % interval) | failure classes | median time to goal | closed loop run by |",
         "|---|---|---|---|---|---|",
     ]
     runs = {path.stem: path for path in directory.glob("*.json")}
-    for path in (directory.parent / "policy").glob("*/select_randomized.json"):
-        runs.setdefault(f"{path.parent.name}-randomized", path)
+    for path in (directory.parent / "policy").glob("*/select*_*.json"):
+        runs.setdefault(f"{path.parent.name}-{selection_run_name(path.stem)}", path)
     for stem, path in sorted(runs.items()):
         summary = read(path)
         episodes = summary["episodes"]

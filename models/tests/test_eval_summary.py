@@ -69,3 +69,21 @@ def test_each_failure_has_one_class_from_its_paths():
     assert eval_summary.summarise_episode(episode(7, "time_limit", still, far_ball))["failure_class"] == "stood_or_turned"
     seen = dict(episode(8, "goal", reached, far_ball), first_sighting_s=2.4)
     assert eval_summary.summarise_episode(seen)["first_sighting_s"] == 2.4
+
+
+def test_seeds_keep_the_first_episodes_of_a_longer_run_and_refuse_missing_ones(tmp_path, capsys):
+    path = [[0.0, 0.0], [0.0, 0.0]]
+    trajectories = {"engine": "tract", "episodes": [episode(s, "goal", path, path) for s in (20000, 20001, 20002)]}
+    source, target = tmp_path / "paths.json", tmp_path / "summary.json"
+    source.write_text(json.dumps(trajectories))
+    assert eval_summary.main([str(source), str(target), "--seeds", "20000..20002"]) == 0
+    assert [e["seed"] for e in json.loads(target.read_text())["episodes"]] == [20000, 20001]
+    assert eval_summary.main([str(source), str(target), "--seeds", "20001..20004"]) == 2
+    assert "20003" in capsys.readouterr().err
+
+
+def test_a_models_other_selection_runs_are_named_by_their_file():
+    from dribble_models.results import selection_run_name
+
+    assert selection_run_name("select_randomized") == "randomized"
+    assert selection_run_name("select20_clean") == "clean-20"
