@@ -216,6 +216,40 @@ def selection_runs(directory: Path) -> str:
     return "\n".join(lines)
 
 
+def lerobot_agreement(directory: Path, models: Path) -> str:
+    """LeRobot's evaluation path against `dribble eval` on the same seeds: each
+    `models/lerobot/eval-*.json` (`scripts/lerobot eval`) beside the policy's own selection
+    run (`select.json`) restricted to those seeds, with both intervals and the episodes whose
+    outcome differs (the two paths run the network on different engines, onnxruntime and the
+    compiled one, and a closed loop turns their rounding into other paths)."""
+    lines = [
+        "| policy | seeds | LeRobot `eval_policy` | `dribble eval` | outcomes that differ | intervals overlap |",
+        "|---|---|---|---|---|---|",
+    ]
+    for path in sorted(directory.glob("eval-*.json")):
+        run = read(path)
+        policy = Path(run["policy"]).name
+        seeds = {int(e["seed"]) for e in run["per_episode"]}
+        own = read(models / policy / "select.json")
+        if own is None or not seeds <= {int(e["seed"]) for e in own["episodes"]}:
+            raise ReadmeError(f"{path}: {policy}'s select.json does not hold the seeds {min(seeds)}..{max(seeds)}")
+        own = {**own, "episodes": [e for e in own["episodes"] if int(e["seed"]) in seeds]}
+        lerobot = {"episodes": run["per_episode"]}
+        differ = sorted(
+            int(a["seed"]) for a in run["per_episode"] for b in own["episodes"]
+            if a["seed"] == b["seed"] and (a["outcome"] == "goal") != (b["outcome"] == "goal")
+        )
+        (low_a, high_a), (low_b, high_b) = (
+            wilson(sum(e["outcome"] == "goal" for e in s["episodes"]), len(s["episodes"])) for s in (lerobot, own)
+        )
+        overlap = "yes" if low_a <= high_b and low_b <= high_a else "no"
+        lines.append(
+            f"| {policy} | {min(seeds)}..{max(seeds)} | {goals_cell(lerobot)} | {goals_cell(own)} | "
+            f"{', '.join(map(str, differ)) or 'none'} | {overlap} |"
+        )
+    return "\n".join(lines)
+
+
 def generated_tables(rows: list[dict]) -> dict[str, str]:
     """Each table of the results by the name its README block carries."""
     return {"results": table(rows), "phases": phase_table(rows), "failures": failure_analysis(rows)}
@@ -226,7 +260,7 @@ class ReadmeError(ValueError):
 
 
 #: The pages besides README.md that hold generated blocks (`scripts/results` rewrites them).
-BOOK_PAGES = ("docs/src/results.md", "docs/src/guide/gym-ray.md")
+BOOK_PAGES = ("docs/src/results.md", "docs/src/guide/gym-ray.md", "docs/src/guide/lerobot.md")
 
 
 def with_tables_in(texts: dict[str, str], tables: dict[str, str]) -> dict[str, str]:
@@ -313,6 +347,10 @@ def main(argv: list[str] | None = None) -> int:
             tables["selection"] = selection_runs(selection)
         if args.models:
             tables["status"] = status_table(args.models)
+        # LeRobot's evaluation path against `dribble eval` (models/lerobot, scripts/lerobot eval).
+        lerobot = args.models.parent / "lerobot" if args.models else None
+        if lerobot and any(lerobot.glob("eval-*.json")):
+            tables["lerobot"] = lerobot_agreement(lerobot, args.models)
         try:
             texts = with_tables_in({str(path): path.read_text() for path in args.readme}, tables)
         except (ReadmeError, OSError) as error:

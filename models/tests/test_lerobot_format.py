@@ -65,3 +65,21 @@ def test_lerobot_reads_an_export_as_the_same_rows(tmp_path):
     checked = run("check", str(source), str(tmp_path / "lerobot"))
     assert checked.returncode == 0, checked.stderr
     assert "the same rows" in checked.stdout
+
+
+@pytest.mark.skipif(not (LEROBOT_VENV / "bin" / "python").exists(), reason="no LeRobot environment (scripts/lerobot makes one)")
+def test_lerobots_eval_policy_plays_a_dribble_episode_with_a_shipped_cnn(tmp_path):
+    """LeRobot's make_env and eval_policy (the `--env.type=dribble` configuration) run the CNN
+    fixture through DribbleOnnxPolicy for one short episode; LeRobot's success is dribble's goal."""
+    out = tmp_path / "eval.json"
+    played = subprocess.run(
+        [str(REPOSITORY / "scripts" / "lerobot"), "eval", "--policy", str(REPOSITORY / "models" / "fixtures" / "cnn"),
+         "--seeds", "10000..10001", "--time-limit", "2", "--out", str(out)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert played.returncode == 0, played.stderr[-2000:]
+    summary = json.loads(out.read_text())
+    (episode,) = summary["per_episode"]
+    assert episode["seed"] == 10000 and episode["outcome"] in ("goal", "time_limit", "ball_out")
+    assert episode["lerobot_success"] == (episode["outcome"] == "goal") == episode["is_success"]
+    assert summary["episodes"] == 1 and summary["goals"] == int(episode["outcome"] == "goal")

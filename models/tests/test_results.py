@@ -180,3 +180,24 @@ def test_the_committed_robot_policy_is_the_rules():
     models = REPOSITORY / "models" / "policy"
     shipped = models / (models / "HOST_MODEL").read_text().strip()
     assert (models / "ROBOT_MODEL").read_text().strip() == shipping_rules.robot_policy(shipped)[0]
+
+
+def test_lerobots_path_is_set_beside_dribble_eval_on_the_same_seeds(tmp_path):
+    import json
+
+    from dribble_models.results import ReadmeError, lerobot_agreement
+
+    models, lerobot = tmp_path / "policy", tmp_path / "lerobot"
+    (models / "m").mkdir(parents=True)
+    lerobot.mkdir()
+    own = [{"seed": s, "outcome": "goal"} for s in range(20000, 20004)]
+    (models / "m" / "select.json").write_text(json.dumps({"episodes": own}))
+    run = {"policy": "models/policy/m", "per_episode": [{"seed": 20000, "outcome": "goal"}, {"seed": 20001, "outcome": "time_limit"}]}
+    (lerobot / "eval-m.json").write_text(json.dumps(run))
+    table = lerobot_agreement(lerobot, models)
+    assert "| m | 20000..20001 | 1 / 2 (" in table and "| 2 / 2 (" in table
+    assert table.endswith("| 20001 | yes |")
+    run["per_episode"].append({"seed": 20009, "outcome": "goal"})
+    (lerobot / "eval-m.json").write_text(json.dumps(run))
+    with pytest.raises(ReadmeError, match="does not hold the seeds"):
+        lerobot_agreement(lerobot, models)

@@ -1,0 +1,319 @@
+"""dribble's episodes in LeRobot's evaluation: an environment configuration LeRobot's
+`make_env` builds, and the shipped ONNX policy as a LeRobot policy, played by LeRobot's own
+`eval_policy` (the function behind `lerobot-eval`).
+
+    scripts/lerobot eval --policy models/policy/NAME --seeds 20000..20020 --out FILE.json
+
+- **Environment.** `DribbleEnv` is registered with LeRobot as `--env.type=dribble`
+  (`EnvConfig.register_subclass`); its gym id is `gym_dribble/NaoDribble-v0`, which the
+  `gym_dribble` package registers on import as LeRobot's convention asks. It wraps the
+  project's Gymnasium environment (`dribble_models.gym_env`: the same simulator, renderer and
+  controller code as `dribble eval`) and hands LeRobot the observation it expects:
+  `{"pixels": {"top": uint8 (120, 160, 3), "bottom": uint8 (60, 80, 3)}}`, the thumbnails'
+  luma in three equal channels, as the exported datasets store them
+  (`dribble_models.lerobot_format`), so `observation.images.top` and `.bottom` reach a policy
+  as they reach one trained on those datasets. The action is the normalised speed command
+  `[forward, left, turn]`. Success is dribble's own outcome: `info["is_success"]` is true
+  exactly when the episode ends in a goal; the 90 s limit is the environment's own.
+- **Policy.** `DribbleOnnxPolicy` is a LeRobot `PreTrainedPolicy` that runs a shipped
+  float policy's ONNX network under onnxruntime: it turns LeRobot's float images back into
+  the u8 thumbnails (exactly: they were u8 / 255), makes the network's input as the
+  controller does (`contract.network_input`, `[normalisation]` of the manifest), and returns
+  the command. dribble's controller then clamps it, as in `dribble eval`.
+
+LeRobot picks the seeds: `start_seed`, then one more per episode. The summary written has
+one row per seed with LeRobot's success and dribble's outcome, the goals with their Wilson
+interval, and the time taken. Runs only in LeRobot's environment (`scripts/lerobot`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import Tensor
+
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.policies.pretrained import PreTrainedPolicy
+
+from . import contract
+from .gym_env import NaoDribbleEnv
+
+GYM_ID = "gym_dribble/NaoDribble-v0"
+#: LeRobot's rollout stops after this many steps; dribble's own 90 s limit (2,700 commands at
+#: the camera's 30 Hz) ends every episode before it.
+MAX_STEPS = 3000
+TOP = "observation.images.top"
+BOTTOM = "observation.images.bottom"
+
+
+class LeRobotObservations(gym.ObservationWrapper):
+    """dribble's `{"top", "bottom"}` luma thumbnails as LeRobot's `{"pixels": {...}}` of
+    three-channel images, and dribble's outcome as LeRobot's `is_success`."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.observation_space = gym.spaces.Dict(
+            {
+                "pixels": gym.spaces.Dict(
+                    {
+                        "top": gym.spaces.Box(0, 255, (*contract.TOP_SHAPE, 3), np.uint8),
+                        "bottom": gym.spaces.Box(0, 255, (*contract.BOTTOM_SHAPE, 3), np.uint8),
+                    }
+                )
+            }
+        )
+
+    def observation(self, observation: dict) -> dict:
+        return {"pixels": {name: np.repeat(np.asarray(observation[name])[:, :, None], 3, axis=2) for name in ("top", "bottom")}}
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = super().step(action)
+        if terminated or truncated:
+            info["is_success"] = info.get("outcome") == "goal"
+        return observation, reward, terminated, truncated, info
+
+
+def make_lerobot_env(**kwargs) -> gym.Env:
+    """The environment LeRobot's `make_env` builds (gym id `gym_dribble/NaoDribble-v0`)."""
+    return LeRobotObservations(NaoDribbleEnv(**kwargs))
+
+
+def register() -> None:
+    """Registers the gym id where LeRobot looks for it (idempotent)."""
+    if GYM_ID not in gym.registry:
+        gym.register(id=GYM_ID, entry_point=make_lerobot_env, max_episode_steps=MAX_STEPS)
+
+
+@EnvConfig.register_subclass("dribble")
+@dataclass
+class DribbleEnv(EnvConfig):
+    """`--env.type=dribble`: the Nao dribbling from its two cameras (`conditions` as
+    `dribble eval --condition` takes them; `teacher` only fills `info`)."""
+
+    task: str | None = "NaoDribble-v0"
+    fps: int = 30
+    episode_length: int = MAX_STEPS
+    conditions: str = "clean"
+    teacher: str = "paper"
+    #: The episode's limit, simulated seconds (the paper's 90; shorter only for smoke tests).
+    time_limit_s: float = 90.0
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {
+            "action": PolicyFeature(type=FeatureType.ACTION, shape=(3,)),
+            "pixels/top": PolicyFeature(type=FeatureType.VISUAL, shape=(*contract.TOP_SHAPE, 3)),
+            "pixels/bottom": PolicyFeature(type=FeatureType.VISUAL, shape=(*contract.BOTTOM_SHAPE, 3)),
+        }
+    )
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {"action": "action", "pixels/top": TOP, "pixels/bottom": BOTTOM}
+    )
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {
+            "condition": self.conditions,
+            "expert": self.teacher,
+            "time_limit_s": self.time_limit_s,
+            "max_episode_steps": self.episode_length,
+        }
+
+
+@PreTrainedConfig.register_subclass("dribble_onnx")
+@dataclass
+class DribbleOnnxConfig(PreTrainedConfig):
+    """A shipped dribble float policy (`policy.toml` and its ONNX network)."""
+
+    model: str = ""
+    device: str | None = "cpu"
+    push_to_hub: bool = False
+    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.input_features = {
+            TOP: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *contract.TOP_SHAPE)),
+            BOTTOM: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *contract.BOTTOM_SHAPE)),
+        }
+        self.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(3,))}
+
+    @property
+    def observation_delta_indices(self) -> None:
+        return None
+
+    @property
+    def action_delta_indices(self) -> None:
+        return None
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self):
+        raise NotImplementedError("a shipped dribble policy is evaluated here, not trained")
+
+    def get_scheduler_preset(self) -> None:
+        return None
+
+    def validate_features(self) -> None:
+        return None
+
+
+class DribbleOnnxPolicy(PreTrainedPolicy):
+    """The shipped ONNX network as a LeRobot policy (module doc)."""
+
+    config_class = DribbleOnnxConfig
+    name = "dribble_onnx"
+
+    def __init__(self, config: DribbleOnnxConfig) -> None:
+        super().__init__(config)
+        import onnxruntime
+
+        manifest_path = Path(config.model)
+        manifest_path = manifest_path / "policy.toml" if manifest_path.is_dir() else manifest_path
+        manifest = tomllib.loads(manifest_path.read_text())
+        if manifest.get("kind") != "cnn" or len(manifest.get("networks", [])) != 1:
+            raise ValueError(f"{manifest_path}: only one-network CNN policies run here (kind {manifest.get('kind')!r})")
+        if manifest.get("precision", "float32") != "float32":
+            raise ValueError(f"{manifest_path}: a float policy, not {manifest['precision']}")
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = 1
+        options.inter_op_num_threads = 1
+        self.session = onnxruntime.InferenceSession(str(manifest_path.parent / manifest["networks"][0]), options)
+        normalisation = manifest["normalisation"]
+        self.scale = float(normalisation["scale"])
+        self.standardise = bool(normalisation.get("standardise", False))
+        self.names = (manifest["inputs"]["top"]["name"], manifest["inputs"]["bottom"]["name"])
+
+    def get_optim_params(self) -> dict:
+        return {}
+
+    def reset(self) -> None:
+        """A CNN carries nothing from one step to the next."""
+
+    def forward(self, batch: dict[str, Tensor]):
+        raise NotImplementedError("a shipped dribble policy is evaluated here, not trained")
+
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        return self.select_action(batch)[:, None]
+
+    @staticmethod
+    def thumbnails(images: Tensor) -> np.ndarray:
+        """LeRobot's float images [B, 3, H, W] in [0, 1] back to the u8 luma [B, H, W]."""
+        return np.rint(images[:, 0].detach().cpu().numpy().astype(np.float64) * 255.0).astype(np.uint8)
+
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        tops, bottoms = self.thumbnails(batch[TOP]), self.thumbnails(batch[BOTTOM])
+        commands = []
+        for top, bottom in zip(tops, bottoms):
+            feed = {
+                self.names[0]: contract.network_input(top[None, None], self.standardise, self.scale),
+                self.names[1]: contract.network_input(bottom[None, None], self.standardise, self.scale),
+            }
+            commands.append(self.session.run(None, feed)[0][0])
+        return torch.from_numpy(np.asarray(commands, dtype=np.float32))
+
+
+def wilson(goals: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a goal rate."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = goals / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+class OutcomeLog(gym.Wrapper):
+    """Keeps each finished episode's seed and dribble outcome, beside LeRobot's own record."""
+
+    finished: list[dict] = []
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        if terminated or truncated:
+            OutcomeLog.finished.append(
+                {"seed": int(info["seed"]), "outcome": info.get("outcome"), "duration_s": float(info.get("duration_s", 0.0)), "is_success": bool(info.get("is_success"))}
+            )
+        return observation, reward, terminated, truncated, info
+
+
+def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 90.0) -> dict:
+    """LeRobot's `make_env` and `eval_policy` on `seeds`, one episode at a time."""
+    from lerobot.envs.factory import make_env
+    from lerobot.processor import PolicyProcessorPipeline
+    from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
+    from lerobot.scripts.lerobot_eval import eval_policy
+
+    register()
+    config = DribbleEnv(conditions=conditions, time_limit_s=time_limit_s)
+    environments = make_env(config, n_envs=1)
+    vector_env = environments["dribble"][0]
+    vector_env.envs[0] = OutcomeLog(vector_env.envs[0])
+    policy = DribbleOnnxPolicy(DribbleOnnxConfig(model=str(model)))
+    # No processing on either side: the network's own normalisation is inside the policy.
+    identity = PolicyProcessorPipeline(steps=[])
+    actions = PolicyProcessorPipeline(steps=[], to_transition=policy_action_to_transition, to_output=transition_to_policy_action)
+    started = time.monotonic()
+    OutcomeLog.finished.clear()
+    info = eval_policy(
+        vector_env, policy, identity, identity, identity, actions, n_episodes=len(seeds), start_seed=seeds.start
+    )
+    vector_env.close()
+    episodes = [
+        {**row, "lerobot_success": bool(lerobot["success"])}
+        for row, lerobot in zip(OutcomeLog.finished, info["per_episode"])
+    ]
+    goals = sum(e["outcome"] == "goal" for e in episodes)
+    low, high = wilson(goals, len(episodes))
+    return {
+        "path": "lerobot eval_policy (LeRobot 0.4.4) over gym_dribble/NaoDribble-v0, onnxruntime",
+        "policy": str(model),
+        "conditions": conditions,
+        "time_limit_s": time_limit_s,
+        "seeds": f"{seeds.start}..{seeds.stop - 1}",
+        "goals": goals,
+        "episodes": len(episodes),
+        "interval": [round(low, 3), round(high, 3)],
+        "lerobot_pc_success": info["aggregated"]["pc_success"],
+        "wall_s": round(time.monotonic() - started, 1),
+        "per_episode": episodes,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="scripts/lerobot eval", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--policy", type=Path, required=True, help="a shipped float CNN: models/policy/NAME or its policy.toml")
+    parser.add_argument("--seeds", required=True, metavar="A..B", help="the episodes' seeds, A to B - 1")
+    parser.add_argument("--condition", default="clean", help="as `dribble eval --condition` takes it")
+    parser.add_argument("--time-limit", type=float, default=90.0, help="simulated seconds per episode (the paper's 90)")
+    parser.add_argument("--out", type=Path, required=True, help="the summary (JSON)")
+    args = parser.parse_args(argv)
+    first, _, end = args.seeds.partition("..")
+    try:
+        seeds = range(int(first), int(end))
+    except ValueError:
+        parser.error(f"--seeds is A..B, not {args.seeds!r}")
+    if not seeds:
+        parser.error(f"--seeds {args.seeds} holds no seed")
+    summary = evaluate(args.policy, seeds, args.condition, args.time_limit)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(summary, indent=1) + "\n")
+    low, high = summary["interval"]
+    print(f"goals {summary['goals']} / {summary['episodes']} ({low:.2f}-{high:.2f}) through LeRobot's eval_policy, {summary['wall_s']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
