@@ -260,7 +260,7 @@ class ReadmeError(ValueError):
 
 
 #: The pages besides README.md that hold generated blocks (`scripts/results` rewrites them).
-BOOK_PAGES = ("docs/src/results.md", "docs/src/guide/gym-ray.md", "docs/src/guide/lerobot.md")
+BOOK_PAGES = ("docs/src/results.md", "docs/src/guide/gym-ray.md", "docs/src/guide/lerobot.md", "docs/src/guide/teachers.md")
 
 
 def with_tables_in(texts: dict[str, str], tables: dict[str, str]) -> dict[str, str]:
@@ -336,6 +336,8 @@ def main(argv: list[str] | None = None) -> int:
             # Gymnasium environment against `dribble eval` (dribble_models.gym_equivalence).
             "cluster": ("..", "cluster", "throughput.md"),
             "gym": ("..", "cluster", "gym_equivalence.md"),
+            # The rows the detector rule labels otherwise (dribble_models.teacher_agreement).
+            "detector-rows": ("..", "teachers", "detector-vs-observable.md"),
         }
         for name, parts in written.items():
             path = args.models.joinpath(*parts) if args.models else None
