@@ -338,6 +338,7 @@ def main(argv: list[str] | None = None) -> int:
             "gym": ("..", "cluster", "gym_equivalence.md"),
             # The rows the detector rule labels otherwise (dribble_models.teacher_agreement).
             "detector-rows": ("..", "teachers", "detector-vs-observable.md"),
+            "detector-rows-robots": ("..", "teachers", "detector-vs-observable-robots3.md"),
         }
         for name, parts in written.items():
             path = args.models.joinpath(*parts) if args.models else None
