@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 import tomllib
@@ -49,6 +48,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 
 from . import contract
 from .gym_env import NaoDribbleEnv
+from .teachers import wilson
 
 GYM_ID = "gym_dribble/NaoDribble-v0"
 #: LeRobot's rollout stops after this many steps; dribble's own 90 s limit (2,700 commands at
@@ -223,16 +223,6 @@ class DribbleOnnxPolicy(PreTrainedPolicy):
             }
             commands.append(self.session.run(None, feed)[0][0])
         return torch.from_numpy(np.asarray(commands, dtype=np.float32))
-
-
-def wilson(goals: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """The 95 % Wilson score interval of a goal rate."""
-    if n == 0:
-        return (0.0, 1.0)
-    p = goals / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 class OutcomeLog(gym.Wrapper):
