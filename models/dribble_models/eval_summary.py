@@ -21,6 +21,8 @@ import math
 import sys
 from pathlib import Path
 
+from .cluster import seed_range
+
 #: Half the SPL field's length, metres: the target goal's x.
 GOAL_X_M = 4.5
 #: Samples per second in the paths `dribble eval` writes.
@@ -89,18 +91,6 @@ def summarise_episode(episode: dict) -> dict:
         # A randomized run: what this episode drew from its seed.
         summary["drawn_conditions"] = episode["drawn_conditions"]
     return summary
-
-
-def seed_range(text: str) -> range:
-    """`A..B`, the seeds A to B - 1 (as `dribble eval --episodes` writes them)."""
-    first, _, end = text.partition("..")
-    try:
-        seeds = range(int(first), int(end))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"a seed range is A..B, not {text!r}") from None
-    if not seeds:
-        raise argparse.ArgumentTypeError(f"{text} holds no seed")
-    return seeds
 
 
 def summarise(trajectories: dict, seeds: range | None = None) -> dict:

@@ -32,7 +32,6 @@ import argparse
 import json
 import sys
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,7 +46,9 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.policies.pretrained import PreTrainedPolicy
 
 from . import contract
+from .cluster import seed_range
 from .gym_env import NaoDribbleEnv
+from .gym_equivalence import OnnxPolicy
 from .teachers import wilson
 
 GYM_ID = "gym_dribble/NaoDribble-v0"
@@ -178,23 +179,9 @@ class DribbleOnnxPolicy(PreTrainedPolicy):
 
     def __init__(self, config: DribbleOnnxConfig) -> None:
         super().__init__(config)
-        import onnxruntime
-
         manifest_path = Path(config.model)
-        manifest_path = manifest_path / "policy.toml" if manifest_path.is_dir() else manifest_path
-        manifest = tomllib.loads(manifest_path.read_text())
-        if manifest.get("kind") != "cnn" or len(manifest.get("networks", [])) != 1:
-            raise ValueError(f"{manifest_path}: only one-network CNN policies run here (kind {manifest.get('kind')!r})")
-        if manifest.get("precision", "float32") != "float32":
-            raise ValueError(f"{manifest_path}: a float policy, not {manifest['precision']}")
-        options = onnxruntime.SessionOptions()
-        options.intra_op_num_threads = 1
-        options.inter_op_num_threads = 1
-        self.session = onnxruntime.InferenceSession(str(manifest_path.parent / manifest["networks"][0]), options)
-        normalisation = manifest["normalisation"]
-        self.scale = float(normalisation["scale"])
-        self.standardise = bool(normalisation.get("standardise", False))
-        self.names = (manifest["inputs"]["top"]["name"], manifest["inputs"]["bottom"]["name"])
+        # The Gymnasium comparison's onnxruntime runner: the same checks and network input.
+        self.network = OnnxPolicy(manifest_path / "policy.toml" if manifest_path.is_dir() else manifest_path)
 
     def get_optim_params(self) -> dict:
         return {}
@@ -215,25 +202,21 @@ class DribbleOnnxPolicy(PreTrainedPolicy):
 
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         tops, bottoms = self.thumbnails(batch[TOP]), self.thumbnails(batch[BOTTOM])
-        commands = []
-        for top, bottom in zip(tops, bottoms):
-            feed = {
-                self.names[0]: contract.network_input(top[None, None], self.standardise, self.scale),
-                self.names[1]: contract.network_input(bottom[None, None], self.standardise, self.scale),
-            }
-            commands.append(self.session.run(None, feed)[0][0])
+        commands = [self.network({"top": top, "bottom": bottom}) for top, bottom in zip(tops, bottoms)]
         return torch.from_numpy(np.asarray(commands, dtype=np.float32))
 
 
 class OutcomeLog(gym.Wrapper):
     """Keeps each finished episode's seed and dribble outcome, beside LeRobot's own record."""
 
-    finished: list[dict] = []
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.finished: list[dict] = []
 
     def step(self, action):
         observation, reward, terminated, truncated, info = self.env.step(action)
         if terminated or truncated:
-            OutcomeLog.finished.append(
+            self.finished.append(
                 {"seed": int(info["seed"]), "outcome": info.get("outcome"), "duration_s": float(info.get("duration_s", 0.0)), "is_success": bool(info.get("is_success"))}
             )
         return observation, reward, terminated, truncated, info
@@ -250,20 +233,19 @@ def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 9
     config = DribbleEnv(conditions=conditions, time_limit_s=time_limit_s)
     environments = make_env(config, n_envs=1)
     vector_env = environments["dribble"][0]
-    vector_env.envs[0] = OutcomeLog(vector_env.envs[0])
+    outcomes = vector_env.envs[0] = OutcomeLog(vector_env.envs[0])
     policy = DribbleOnnxPolicy(DribbleOnnxConfig(model=str(model)))
     # No processing on either side: the network's own normalisation is inside the policy.
     identity = PolicyProcessorPipeline(steps=[])
     actions = PolicyProcessorPipeline(steps=[], to_transition=policy_action_to_transition, to_output=transition_to_policy_action)
     started = time.monotonic()
-    OutcomeLog.finished.clear()
     info = eval_policy(
         vector_env, policy, identity, identity, identity, actions, n_episodes=len(seeds), start_seed=seeds.start
     )
     vector_env.close()
     episodes = [
         {**row, "lerobot_success": bool(lerobot["success"])}
-        for row, lerobot in zip(OutcomeLog.finished, info["per_episode"])
+        for row, lerobot in zip(outcomes.finished, info["per_episode"])
     ]
     goals = sum(e["outcome"] == "goal" for e in episodes)
     low, high = wilson(goals, len(episodes))
@@ -285,19 +267,12 @@ def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 9
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="scripts/lerobot eval", description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", type=Path, required=True, help="a shipped float CNN: models/policy/NAME or its policy.toml")
-    parser.add_argument("--seeds", required=True, metavar="A..B", help="the episodes' seeds, A to B - 1")
+    parser.add_argument("--seeds", type=seed_range, required=True, metavar="A..B", help="the episodes' seeds, A to B - 1")
     parser.add_argument("--condition", default="clean", help="as `dribble eval --condition` takes it")
     parser.add_argument("--time-limit", type=float, default=90.0, help="simulated seconds per episode (the paper's 90)")
     parser.add_argument("--out", type=Path, required=True, help="the summary (JSON)")
     args = parser.parse_args(argv)
-    first, _, end = args.seeds.partition("..")
-    try:
-        seeds = range(int(first), int(end))
-    except ValueError:
-        parser.error(f"--seeds is A..B, not {args.seeds!r}")
-    if not seeds:
-        parser.error(f"--seeds {args.seeds} holds no seed")
-    summary = evaluate(args.policy, seeds, args.condition, args.time_limit)
+    summary = evaluate(args.policy, args.seeds, args.condition, args.time_limit)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=1) + "\n")
     low, high = summary["interval"]

@@ -235,10 +235,8 @@ def lerobot_agreement(directory: Path, models: Path) -> str:
             raise ReadmeError(f"{path}: {policy}'s select.json does not hold the seeds {min(seeds)}..{max(seeds)}")
         own = {**own, "episodes": [e for e in own["episodes"] if int(e["seed"]) in seeds]}
         lerobot = {"episodes": run["per_episode"]}
-        differ = sorted(
-            int(a["seed"]) for a in run["per_episode"] for b in own["episodes"]
-            if a["seed"] == b["seed"] and (a["outcome"] == "goal") != (b["outcome"] == "goal")
-        )
+        scored = {int(e["seed"]): e["outcome"] == "goal" for e in own["episodes"]}
+        differ = sorted(int(e["seed"]) for e in run["per_episode"] if (e["outcome"] == "goal") != scored[int(e["seed"])])
         (low_a, high_a), (low_b, high_b) = (
             wilson(sum(e["outcome"] == "goal" for e in s["episodes"]), len(s["episodes"])) for s in (lerobot, own)
         )
