@@ -47,7 +47,7 @@ pub struct CameraInput<'a> {
 }
 
 /// What the loop did, counted since start-up.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct LoopCounters {
     pub ticks: u64,
     /// Commands computed by the policy from a new pair of frames.

@@ -15,25 +15,16 @@ use crate::tick_stats::TickSummary;
 /// The machine line starts with this; the rest of it is [`RunStatistics`] as JSON.
 pub const STATISTICS_PREFIX: &str = "statistics ";
 
-/// A run's counters and tick time, as the controller prints them when it stops.
+/// A run's counters and tick time, as the controller prints them when it stops. The loop's
+/// counters are its own type, flattened into the JSON.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct RunStatistics {
-    pub ticks: u64,
-    pub new_commands: u64,
-    pub repeated_commands: u64,
-    pub stops: u64,
-    /// Stops because a camera fell silent.
-    pub camera_stops: u64,
-    pub policy_failures: u64,
-    pub non_finite_outputs: u64,
-    /// Frames accepted, top then bottom.
+    #[serde(flatten)]
+    pub counters: LoopCounters,
+    /// Frames accepted, top then bottom (the camera sync's counts).
     pub frames_accepted: [u64; 2],
     pub duplicates: [u64; 2],
     pub out_of_order: [u64; 2],
-    pub invalid_frames: u64,
-    /// Frames stamped after the tick that read them.
-    pub future_frames: u64,
-    pub deadline_misses: u64,
     /// The tick's own time; absent when no tick ran.
     pub tick_time: Option<TickTime>,
 }
@@ -65,19 +56,10 @@ fn nanos(duration: Duration) -> u64 {
 impl RunStatistics {
     pub fn new(counters: &LoopCounters, sync: &SyncCounters, tick: Option<TickSummary>) -> Self {
         Self {
-            ticks: counters.ticks,
-            new_commands: counters.new_commands,
-            repeated_commands: counters.repeated_commands,
-            stops: counters.stops,
-            camera_stops: counters.camera_stops,
-            policy_failures: counters.policy_failures,
-            non_finite_outputs: counters.non_finite_outputs,
+            counters: *counters,
             frames_accepted: sync.accepted,
             duplicates: sync.duplicates,
             out_of_order: sync.out_of_order,
-            invalid_frames: counters.invalid_frames,
-            future_frames: counters.future_frames,
-            deadline_misses: counters.deadline_misses,
             tick_time: tick.map(|summary| TickTime {
                 p50_ns: nanos(summary.median),
                 p99_ns: nanos(summary.p99),
@@ -109,16 +91,17 @@ impl RunStatistics {
 /// The three lines for people: commands, frames, tick time.
 impl fmt::Display for RunStatistics {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let counters = &self.counters;
         writeln!(
             f,
             "ticks {}: {} new, {} repeated, {} stops ({} for cameras), {} policy failures, {} non-finite outputs",
-            self.ticks,
-            self.new_commands,
-            self.repeated_commands,
-            self.stops,
-            self.camera_stops,
-            self.policy_failures,
-            self.non_finite_outputs
+            counters.ticks,
+            counters.new_commands,
+            counters.repeated_commands,
+            counters.stops,
+            counters.camera_stops,
+            counters.policy_failures,
+            counters.non_finite_outputs
         )?;
         writeln!(
             f,
@@ -127,9 +110,9 @@ impl fmt::Display for RunStatistics {
             self.frames_accepted[1],
             self.duplicates,
             self.out_of_order,
-            self.invalid_frames,
-            self.future_frames,
-            self.deadline_misses
+            counters.invalid_frames,
+            counters.future_frames,
+            counters.deadline_misses
         )?;
         match self.tick_time {
             Some(time) => write!(
@@ -152,19 +135,21 @@ mod tests {
 
     fn example() -> RunStatistics {
         RunStatistics {
-            ticks: 900,
-            new_commands: 850,
-            repeated_commands: 40,
-            stops: 10,
-            camera_stops: 7,
-            policy_failures: 0,
-            non_finite_outputs: 0,
+            counters: LoopCounters {
+                ticks: 900,
+                new_commands: 850,
+                repeated_commands: 40,
+                stops: 10,
+                camera_stops: 7,
+                policy_failures: 0,
+                non_finite_outputs: 0,
+                invalid_frames: 0,
+                future_frames: 0,
+                deadline_misses: 3,
+            },
             frames_accepted: [890, 880],
             duplicates: [1, 0],
             out_of_order: [0, 2],
-            invalid_frames: 0,
-            future_frames: 0,
-            deadline_misses: 3,
             tick_time: Some(TickTime {
                 p50_ns: 1_234_000,
                 p99_ns: 2_000_000,
@@ -179,7 +164,7 @@ mod tests {
     fn the_machine_line_reads_back_from_a_log_and_the_last_run_wins() {
         let first = example();
         let mut second = example();
-        second.ticks = 12;
+        second.counters.ticks = 12;
         second.tick_time = None;
         let log = format!(
             "policy: cnn from x, engine tract\n{first}\n{}\nts=... event=stopped\n{second}\n{}\n",

@@ -82,7 +82,10 @@ fn run_answers_lock_step_ticks_and_stops_on_sigterm() {
     assert!(stdout.contains("tick time: p50"), "{stdout}");
     let statistics = dribble_controller::run_statistics::RunStatistics::from_log(&stdout)
         .unwrap_or_else(|why| panic!("{why}: {stdout}"));
-    assert_eq!((statistics.ticks, statistics.new_commands), (1, 1));
+    assert_eq!(
+        (statistics.counters.ticks, statistics.counters.new_commands),
+        (1, 1)
+    );
     assert!(statistics.tick_time.is_some());
     let logged: Vec<String> = lines_rx.try_iter().collect();
     assert!(
