@@ -12,19 +12,7 @@ import torch
 
 from . import contract
 from .manifest import Manifest, TrainingRecord
-from .networks import CNN, HCNN, RCNN, CameraFeatures, ModalCNN, RCNNStep
-
-
-def standardises(model: torch.nn.Module) -> bool:
-    """Whether the model standardises its thumbnails (`CameraFeatures.standardise_input`)."""
-    return any(m.standardise_input for m in model.modules() if isinstance(m, CameraFeatures))
-
-
-def set_standardise(model: torch.nn.Module, standardise: bool) -> None:
-    """Makes every camera branch of `model` standardise its inputs, or not."""
-    for module in model.modules():
-        if isinstance(module, CameraFeatures):
-            module.standardise_input = standardise
+from .networks import CNN, HCNN, RCNN, ModalCNN, RCNNStep, set_standardise, standardises
 
 
 @contextmanager

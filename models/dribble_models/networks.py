@@ -92,6 +92,18 @@ class CameraFeatures(nn.Module):
         return torch.cat([self.top(top), self.bottom(bottom)], dim=1)
 
 
+def standardises(model: nn.Module) -> bool:
+    """Whether the model standardises its thumbnails (`CameraFeatures.standardise_input`)."""
+    return any(m.standardise_input for m in model.modules() if isinstance(m, CameraFeatures))
+
+
+def set_standardise(model: nn.Module, standardise: bool) -> None:
+    """Makes every camera branch of `model` standardise its inputs, or not."""
+    for module in model.modules():
+        if isinstance(module, CameraFeatures):
+            module.standardise_input = standardise
+
+
 class CNN(nn.Module):
     """Features, dense 128 ReLU, dense 3: (top, bottom) -> command [B,3]."""
 

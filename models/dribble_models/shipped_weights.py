@@ -26,6 +26,8 @@ import torch
 from onnx import numpy_helper
 from torch import nn
 
+from .networks import set_standardise
+
 
 class ShippedWeightsError(ValueError):
     """The model directory does not hold exactly this network's float weights."""
@@ -104,8 +106,6 @@ def load_shipped_weights(model: nn.Module, path: Path, kind: str) -> None:
     if extra:
         raise ShippedWeightsError(f"{manifest_path}: initializers {', '.join(extra[:4])} are no parameter of this network")
     load_strictly(model, initializers, manifest_path)
-    from .export import set_standardise
-
     set_standardise(model, standardised_manifest(manifest_path))
 
 

@@ -64,10 +64,10 @@ from tqdm import tqdm
 from . import contract
 from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .seed_ranges import refuse_reserved
-from .export import export_policy, set_standardise, standardises
+from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
-from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN
+from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of
 from .stalls import CutReport, StallRule, cut_all
 

@@ -166,7 +166,7 @@ def test_a_standardised_policy_exports_the_network_alone(tmp_path, rng):
     back as a start, the model standardises again."""
     import tomllib
 
-    from dribble_models.export import set_standardise, standardises
+    from dribble_models.networks import set_standardise, standardises
     from dribble_models.shipped_weights import load_shipped_weights
 
     model = CNN(Filters(4, 8, 4, 8)).eval()

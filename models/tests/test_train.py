@@ -384,7 +384,7 @@ def test_a_folded_start_answers_as_before_on_a_typical_thumbnail(rng):
     input: on thumbnails whose own mean and spread are the rows' typical ones, the folded,
     standardising model's first convolution answers as the old one did (away from the
     zero-padded border, where the two paddings differ)."""
-    from dribble_models.export import set_standardise
+    from dribble_models.networks import set_standardise
     from dribble_models.networks import standardised
     from dribble_models.train import Rows, fold_typical_level
 

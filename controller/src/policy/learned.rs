@@ -112,7 +112,7 @@ impl ThumbnailTensors {
         Ok(Self {
             top: zero_tensor(path, &TOP_SHAPE)?,
             bottom: zero_tensor(path, &BOTTOM_SHAPE)?,
-            normalisation: manifest.normalisation.clone(),
+            normalisation: manifest.normalisation,
         })
     }
 
@@ -274,7 +274,7 @@ impl Network {
                     let network = Self::Compiled {
                         network: Box::new(compiled),
                         names,
-                        normalisation: manifest.normalisation.clone(),
+                        normalisation: manifest.normalisation,
                     };
                     return Ok((network, report));
                 }

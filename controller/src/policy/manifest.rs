@@ -102,7 +102,7 @@ pub struct TensorSpec {
 }
 
 /// How a thumbnail's u8 pixels become the network's input (see [`super::network_input`]).
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Normalisation {
     /// The network sees `pixel * scale` (1/255 in DESIGN.md).
