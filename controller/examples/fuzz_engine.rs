@@ -162,234 +162,273 @@ impl Builder {
         let rank = shape.len();
         match self.rng.below(15) {
             0 | 1 if rank == 4 => self.conv(&input, &shape),
-            2 if rank == 4 => {
-                let k = self.rng.range(1, 3);
-                let s = self.rng.range(1, 3);
-                let (k, s) = (self.maybe_hostile(k), self.maybe_hostile(s));
-                let out =
-                    (k > 0 && s > 0 && shape[2] as i64 >= k && shape[3] as i64 >= k).then(|| {
-                        let o = |d: usize| ((d as i64 - k) / s + 1) as usize;
-                        vec![1, shape[1], o(shape[2]), o(shape[3])]
-                    });
-                self.push(
-                    "MaxPool",
-                    &[&input],
-                    &[
-                        ("kernel_shape", Attribute::Ints(vec![k, k])),
-                        ("strides", Attribute::Ints(vec![s, s])),
-                    ],
-                    out,
-                );
-            }
+            2 if rank == 4 => self.max_pool(input, shape),
             3 => self.push("Relu", &[&input], &[], Some(shape)),
-            4 => {
-                let axis = self.rng.range(-(rank as i64), rank as i64);
-                let axis = self.maybe_hostile(axis);
-                let split = if axis < 0 { axis + rank as i64 } else { axis };
-                let out = (0..=rank as i64).contains(&split).then(|| {
-                    let split = split as usize;
-                    vec![
-                        shape[..split].iter().product(),
-                        shape[split..].iter().product(),
-                    ]
-                });
-                self.push("Flatten", &[&input], &[("axis", Attribute::Int(axis))], out);
-            }
-            5 => {
-                let total: usize = shape.iter().product();
-                let first = self.rng.pick(&[1usize, 2, 3, 4]).min(total);
-                let target = if total.is_multiple_of(first) {
-                    vec![first as i64, -1]
-                } else {
-                    vec![-1]
-                };
-                let target: Vec<i64> = target.into_iter().map(|t| self.maybe_hostile(t)).collect();
-                let out = match target[..] {
-                    [a, -1] if a > 0 => Some(vec![a as usize, total / a as usize]),
-                    [-1] => Some(vec![total]),
-                    _ => None,
-                };
-                let shape_name = self.constant_ints(&target);
-                self.push("Reshape", &[&input, &shape_name], &[], out);
-            }
-            6 => {
-                let unsqueeze = self.rng.chance(0.5);
-                let axis = self.rng.range(-(rank as i64) - 1, rank as i64);
-                let axis = self.maybe_hostile(axis);
-                let (op, out) = if unsqueeze {
-                    let r = rank as i64 + 1;
-                    let a = if axis < 0 { axis + r } else { axis };
-                    let out = (0..r).contains(&a).then(|| {
-                        let mut s = shape.clone();
-                        s.insert(a as usize, 1);
-                        s
-                    });
-                    ("Unsqueeze", out)
-                } else {
-                    let a = if axis < 0 { axis + rank as i64 } else { axis };
-                    let out =
-                        ((0..rank as i64).contains(&a) && shape[a as usize] == 1).then(|| {
-                            let mut s = shape.clone();
-                            s.remove(a as usize);
-                            s
-                        });
-                    ("Squeeze", out)
-                };
-                if self.opset >= 13 {
-                    let axes = self.constant_ints(&[axis]);
-                    self.push(op, &[&input, &axes], &[], out);
-                } else {
-                    self.push(op, &[&input], &[("axes", Attribute::Ints(vec![axis]))], out);
-                }
-            }
-            7 => {
-                let mut perm: Vec<i64> = (0..rank as i64).collect();
-                for i in (1..rank).rev() {
-                    let j = self.rng.below(i + 1);
-                    perm.swap(i, j);
-                }
-                if self.rng.chance(0.05) {
-                    perm[0] = self.rng.pick(&HOSTILE);
-                }
-                let out = perm
-                    .iter()
-                    .map(|&p| usize::try_from(p).ok().and_then(|p| shape.get(p).copied()))
-                    .collect::<Option<Vec<usize>>>();
-                self.push(
-                    "Transpose",
-                    &[&input],
-                    &[("perm", Attribute::Ints(perm))],
-                    out,
-                );
-            }
-            8 => {
-                let axis = self.rng.below(rank);
-                let dim = shape[axis] as i64;
-                let count = 1 + self.rng.below(3);
-                let indices: Vec<i64> = (0..count)
-                    .map(|_| {
-                        let i = self.rng.range(-dim, dim - 1);
-                        self.maybe_hostile(i)
-                    })
-                    .collect();
-                let valid = indices.iter().all(|&i| i >= -dim && i < dim);
-                let mut out = shape.clone();
-                out[axis] = count;
-                let index_name = self.constant_ints(&indices);
-                self.push(
-                    "Gather",
-                    &[&input, &index_name],
-                    &[("axis", Attribute::Int(axis as i64))],
-                    valid.then_some(out),
-                );
-            }
-            9 => {
-                let axis = self.rng.below(rank);
-                let other = self
-                    .values
-                    .iter()
-                    .find(|(n, s)| *n != input && *s == shape)
-                    .map(|(n, _)| n.clone());
-                let second = other.unwrap_or_else(|| input.clone());
-                let mut out = shape.clone();
-                out[axis] *= 2;
-                self.push(
-                    "Concat",
-                    &[&input, &second],
-                    &[("axis", Attribute::Int(axis as i64))],
-                    Some(out),
-                );
-            }
-            10 if rank >= 1 => {
-                let k = shape[rank - 1];
-                let n = 1 + self.rng.below(40);
-                let w = self.constant_floats(&[k, n]);
-                let mut out = shape.clone();
-                out[rank - 1] = n;
-                if rank == 2 && self.rng.chance(0.5) {
-                    let bias = self.constant_floats(&[n]);
-                    let alpha = self.rng.pick(&[1.0f32, 0.5, -1.5]);
-                    self.push(
-                        "Gemm",
-                        &[&input, &w, &bias],
-                        &[("alpha", Attribute::Float(alpha))],
-                        Some(out),
-                    );
-                } else {
-                    self.push("MatMul", &[&input, &w], &[], Some(out.clone()));
-                    if self.rng.chance(0.6) {
-                        let product = self.values.last().map(|(n, _)| n.clone());
-                        if let Some(product) = product {
-                            let bias_shape = if self.rng.chance(0.3) {
-                                vec![1, n]
-                            } else {
-                                vec![n]
-                            };
-                            let bias = self.constant_floats(&bias_shape);
-                            let mut sum = out.clone();
-                            if bias_shape.len() > sum.len() {
-                                sum.insert(0, 1);
-                            }
-                            self.push("Add", &[&product, &bias], &[], Some(sum));
-                        }
-                    }
-                }
-            }
-            11 => {
-                let op = self.rng.pick(&["Add", "Sub", "Mul", "Div"]);
-                // The other operand: the value itself broadcast from a reduced constant.
-                let mut other_shape: Vec<usize> = shape
-                    .iter()
-                    .map(|&d| if self.rng.chance(0.5) { 1 } else { d })
-                    .collect();
-                let cut = self.rng.below(rank);
-                other_shape.drain(..cut);
-                let other = self.constant_floats(&other_shape);
-                self.push(op, &[&input, &other], &[], Some(shape));
-            }
-            12 => {
-                let max = self.rng.chance(0.5);
-                let op = if max { "ReduceMax" } else { "ReduceSum" };
-                let axis = self.rng.range(-(rank as i64), rank as i64 - 1);
-                let axis = self.maybe_hostile(axis);
-                let keep = self.rng.chance(0.5);
-                let a = if axis < 0 { axis + rank as i64 } else { axis };
-                let out = (0..rank as i64).contains(&a).then(|| {
-                    let mut s = shape.clone();
-                    if keep {
-                        s[a as usize] = 1;
-                    } else {
-                        s.remove(a as usize);
-                    }
-                    s
-                });
-                let as_input = self.opset >= if max { 18 } else { 13 };
-                let keepdims = ("keepdims", Attribute::Int(i64::from(keep)));
-                if as_input {
-                    let axes = self.constant_ints(&[axis]);
-                    self.push(op, &[&input, &axes], &[keepdims], out);
-                } else {
-                    self.push(
-                        op,
-                        &[&input],
-                        &[keepdims, ("axes", Attribute::Ints(vec![axis]))],
-                        out,
-                    );
-                }
-            }
+            4 => self.flatten(input, shape),
+            5 => self.reshape(input, shape),
+            6 => self.squeeze_or_unsqueeze(input, shape),
+            7 => self.transpose(input, shape),
+            8 => self.gather(input, shape),
+            9 => self.concat(input, shape),
+            10 if rank >= 1 => self.matmul(input, shape),
+            11 => self.broadcast_binary(input, shape),
+            12 => self.reduce(input, shape),
             13 if shape[..rank.saturating_sub(1)].iter().all(|&d| d == 1) && rank == 3 => {
                 self.lstm(&input, shape[2]);
             }
-            _ => {
-                let op = self.rng.pick(&["Identity", "Cast"]);
-                let attributes = if op == "Cast" {
-                    vec![("to", Attribute::Int(1))]
-                } else {
-                    vec![]
-                };
-                self.push(op, &[&input], &attributes, Some(shape));
+            _ => self.identity_or_cast(input, shape),
+        }
+    }
+
+    /// A MaxPool with a small (or hostile) kernel and stride.
+    fn max_pool(&mut self, input: String, shape: Vec<usize>) {
+        let k = self.rng.range(1, 3);
+        let s = self.rng.range(1, 3);
+        let (k, s) = (self.maybe_hostile(k), self.maybe_hostile(s));
+        let out = (k > 0 && s > 0 && shape[2] as i64 >= k && shape[3] as i64 >= k).then(|| {
+            let o = |d: usize| ((d as i64 - k) / s + 1) as usize;
+            vec![1, shape[1], o(shape[2]), o(shape[3])]
+        });
+        self.push(
+            "MaxPool",
+            &[&input],
+            &[
+                ("kernel_shape", Attribute::Ints(vec![k, k])),
+                ("strides", Attribute::Ints(vec![s, s])),
+            ],
+            out,
+        );
+    }
+
+    /// A Flatten at a random (or hostile) axis.
+    fn flatten(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let axis = self.rng.range(-(rank as i64), rank as i64);
+        let axis = self.maybe_hostile(axis);
+        let split = if axis < 0 { axis + rank as i64 } else { axis };
+        let out = (0..=rank as i64).contains(&split).then(|| {
+            let split = split as usize;
+            vec![
+                shape[..split].iter().product(),
+                shape[split..].iter().product(),
+            ]
+        });
+        self.push("Flatten", &[&input], &[("axis", Attribute::Int(axis))], out);
+    }
+
+    /// A Reshape to `[first, -1]` or `[-1]`, the target sometimes hostile.
+    fn reshape(&mut self, input: String, shape: Vec<usize>) {
+        let total: usize = shape.iter().product();
+        let first = self.rng.pick(&[1usize, 2, 3, 4]).min(total);
+        let target = if total.is_multiple_of(first) {
+            vec![first as i64, -1]
+        } else {
+            vec![-1]
+        };
+        let target: Vec<i64> = target.into_iter().map(|t| self.maybe_hostile(t)).collect();
+        let out = match target[..] {
+            [a, -1] if a > 0 => Some(vec![a as usize, total / a as usize]),
+            [-1] => Some(vec![total]),
+            _ => None,
+        };
+        let shape_name = self.constant_ints(&target);
+        self.push("Reshape", &[&input, &shape_name], &[], out);
+    }
+
+    /// An Unsqueeze or a Squeeze at a random (or hostile) axis, its axes an input from opset 13.
+    fn squeeze_or_unsqueeze(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let unsqueeze = self.rng.chance(0.5);
+        let axis = self.rng.range(-(rank as i64) - 1, rank as i64);
+        let axis = self.maybe_hostile(axis);
+        let (op, out) = if unsqueeze {
+            let r = rank as i64 + 1;
+            let a = if axis < 0 { axis + r } else { axis };
+            let out = (0..r).contains(&a).then(|| {
+                let mut s = shape.clone();
+                s.insert(a as usize, 1);
+                s
+            });
+            ("Unsqueeze", out)
+        } else {
+            let a = if axis < 0 { axis + rank as i64 } else { axis };
+            let out = ((0..rank as i64).contains(&a) && shape[a as usize] == 1).then(|| {
+                let mut s = shape.clone();
+                s.remove(a as usize);
+                s
+            });
+            ("Squeeze", out)
+        };
+        if self.opset >= 13 {
+            let axes = self.constant_ints(&[axis]);
+            self.push(op, &[&input, &axes], &[], out);
+        } else {
+            self.push(op, &[&input], &[("axes", Attribute::Ints(vec![axis]))], out);
+        }
+    }
+
+    /// A Transpose by a random (sometimes hostile) permutation.
+    fn transpose(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let mut perm: Vec<i64> = (0..rank as i64).collect();
+        for i in (1..rank).rev() {
+            let j = self.rng.below(i + 1);
+            perm.swap(i, j);
+        }
+        if self.rng.chance(0.05) {
+            perm[0] = self.rng.pick(&HOSTILE);
+        }
+        let out = perm
+            .iter()
+            .map(|&p| usize::try_from(p).ok().and_then(|p| shape.get(p).copied()))
+            .collect::<Option<Vec<usize>>>();
+        self.push(
+            "Transpose",
+            &[&input],
+            &[("perm", Attribute::Ints(perm))],
+            out,
+        );
+    }
+
+    /// A Gather of one to three random (or hostile) indices on one axis.
+    fn gather(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let axis = self.rng.below(rank);
+        let dim = shape[axis] as i64;
+        let count = 1 + self.rng.below(3);
+        let indices: Vec<i64> = (0..count)
+            .map(|_| {
+                let i = self.rng.range(-dim, dim - 1);
+                self.maybe_hostile(i)
+            })
+            .collect();
+        let valid = indices.iter().all(|&i| i >= -dim && i < dim);
+        let mut out = shape.clone();
+        out[axis] = count;
+        let index_name = self.constant_ints(&indices);
+        self.push(
+            "Gather",
+            &[&input, &index_name],
+            &[("axis", Attribute::Int(axis as i64))],
+            valid.then_some(out),
+        );
+    }
+
+    /// A Concat of the value with another of its shape (or itself) on one axis.
+    fn concat(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let axis = self.rng.below(rank);
+        let other = self
+            .values
+            .iter()
+            .find(|(n, s)| *n != input && *s == shape)
+            .map(|(n, _)| n.clone());
+        let second = other.unwrap_or_else(|| input.clone());
+        let mut out = shape.clone();
+        out[axis] *= 2;
+        self.push(
+            "Concat",
+            &[&input, &second],
+            &[("axis", Attribute::Int(axis as i64))],
+            Some(out),
+        );
+    }
+
+    /// A Gemm, or a MatMul with an Add of a bias after it, on the last axis.
+    fn matmul(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let k = shape[rank - 1];
+        let n = 1 + self.rng.below(40);
+        let w = self.constant_floats(&[k, n]);
+        let mut out = shape.clone();
+        out[rank - 1] = n;
+        if rank == 2 && self.rng.chance(0.5) {
+            let bias = self.constant_floats(&[n]);
+            let alpha = self.rng.pick(&[1.0f32, 0.5, -1.5]);
+            self.push(
+                "Gemm",
+                &[&input, &w, &bias],
+                &[("alpha", Attribute::Float(alpha))],
+                Some(out),
+            );
+        } else {
+            self.push("MatMul", &[&input, &w], &[], Some(out.clone()));
+            if self.rng.chance(0.6) {
+                let product = self.values.last().map(|(n, _)| n.clone());
+                if let Some(product) = product {
+                    let bias_shape = if self.rng.chance(0.3) {
+                        vec![1, n]
+                    } else {
+                        vec![n]
+                    };
+                    let bias = self.constant_floats(&bias_shape);
+                    let mut sum = out.clone();
+                    if bias_shape.len() > sum.len() {
+                        sum.insert(0, 1);
+                    }
+                    self.push("Add", &[&product, &bias], &[], Some(sum));
+                }
             }
         }
+    }
+
+    /// An Add, Sub, Mul or Div with a constant broadcast to the value.
+    fn broadcast_binary(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let op = self.rng.pick(&["Add", "Sub", "Mul", "Div"]);
+        // The other operand: the value itself broadcast from a reduced constant.
+        let mut other_shape: Vec<usize> = shape
+            .iter()
+            .map(|&d| if self.rng.chance(0.5) { 1 } else { d })
+            .collect();
+        let cut = self.rng.below(rank);
+        other_shape.drain(..cut);
+        let other = self.constant_floats(&other_shape);
+        self.push(op, &[&input, &other], &[], Some(shape));
+    }
+
+    /// A ReduceMax or ReduceSum over one random (or hostile) axis.
+    fn reduce(&mut self, input: String, shape: Vec<usize>) {
+        let rank = shape.len();
+        let max = self.rng.chance(0.5);
+        let op = if max { "ReduceMax" } else { "ReduceSum" };
+        let axis = self.rng.range(-(rank as i64), rank as i64 - 1);
+        let axis = self.maybe_hostile(axis);
+        let keep = self.rng.chance(0.5);
+        let a = if axis < 0 { axis + rank as i64 } else { axis };
+        let out = (0..rank as i64).contains(&a).then(|| {
+            let mut s = shape.clone();
+            if keep {
+                s[a as usize] = 1;
+            } else {
+                s.remove(a as usize);
+            }
+            s
+        });
+        let as_input = self.opset >= if max { 18 } else { 13 };
+        let keepdims = ("keepdims", Attribute::Int(i64::from(keep)));
+        if as_input {
+            let axes = self.constant_ints(&[axis]);
+            self.push(op, &[&input, &axes], &[keepdims], out);
+        } else {
+            self.push(
+                op,
+                &[&input],
+                &[keepdims, ("axes", Attribute::Ints(vec![axis]))],
+                out,
+            );
+        }
+    }
+
+    /// An Identity or a Cast to float.
+    fn identity_or_cast(&mut self, input: String, shape: Vec<usize>) {
+        let op = self.rng.pick(&["Identity", "Cast"]);
+        let attributes = if op == "Cast" {
+            vec![("to", Attribute::Int(1))]
+        } else {
+            vec![]
+        };
+        self.push(op, &[&input], &attributes, Some(shape));
     }
 
     fn conv(&mut self, input: &str, shape: &[usize]) {
@@ -574,6 +613,38 @@ fn watchdog(started: Instant, limit: Duration, memory_limit_kb: u64, findings: P
 /// Whether a comparison is running (its panics are findings, not to be printed twice).
 static COMPARING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
+/// Prints each node of `graph` (`--show`): operator, inputs, outputs, integer attributes.
+fn print_graph(graph: &pb::ModelProto) {
+    for node in &graph
+        .graph
+        .as_ref()
+        .map(|g| g.node.clone())
+        .unwrap_or_default()
+    {
+        let attributes: Vec<String> = node
+            .attribute
+            .iter()
+            .map(|a| format!("{}={:?}{:?}", a.name, a.i, a.ints))
+            .collect();
+        println!(
+            "{} {:?} -> {:?} {}",
+            node.op_type,
+            node.input,
+            node.output,
+            attributes.join(" ")
+        );
+    }
+}
+
+/// The message a panic carried (a `&str` or a `String`), else empty.
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_default()
+}
+
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     // Panics inside a comparison are findings, reported with their message below; any
@@ -608,25 +679,7 @@ fn main() -> anyhow::Result<()> {
         }
         let (graph, inputs) = case(seed);
         if args.show.is_some() {
-            for node in &graph
-                .graph
-                .as_ref()
-                .map(|g| g.node.clone())
-                .unwrap_or_default()
-            {
-                let attributes: Vec<String> = node
-                    .attribute
-                    .iter()
-                    .map(|a| format!("{}={:?}{:?}", a.name, a.i, a.ints))
-                    .collect();
-                println!(
-                    "{} {:?} -> {:?} {}",
-                    node.op_type,
-                    node.input,
-                    node.output,
-                    attributes.join(" ")
-                );
-            }
+            print_graph(&graph);
         }
         std::fs::write(args.findings.join("current-seed"), seed.to_string())?;
         *CURRENT
@@ -675,11 +728,7 @@ fn main() -> anyhow::Result<()> {
                 }
                 Err(payload) => {
                     findings += 1;
-                    let message = payload
-                        .downcast_ref::<&str>()
-                        .map(|s| (*s).to_owned())
-                        .or_else(|| payload.downcast_ref::<String>().cloned())
-                        .unwrap_or_default();
+                    let message = panic_message(payload.as_ref());
                     println!("seed {seed} ({isa}): panicked: {message}");
                     save(
                         &args.findings,

@@ -17,6 +17,16 @@ pub(crate) struct ConvShape {
     pub out: [usize; 2],
 }
 
+/// One convolution layer as every kernel reads it: its shape, its weights laid out
+/// `[ky][kx][in][out]`, its bias, and whether a ReLU follows (folded into the kernel).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ConvLayer<'a> {
+    pub shape: &'a ConvShape,
+    pub weights: &'a [f32],
+    pub bias: &'a [f32],
+    pub relu: bool,
+}
+
 pub(crate) type BufferId = usize;
 
 /// Weights whose first value sits on a 64-byte boundary. The vector kernels then read them

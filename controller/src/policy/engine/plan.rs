@@ -8,7 +8,7 @@ use core::mem;
 use super::kernels::int8::{Int8Kernel, QuadPanels, Window, ZeroGroups, code_run};
 use super::kernels::winograd;
 use super::kernels::{Kernels, portable};
-use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Grid, Strided};
+use super::layout::{AlignedWeights, BufferId, ConvLayer, ConvShape, DenseWeights, Grid, Strided};
 
 /// A max-pool folded into the convolution before it: the convolution's rows under one row
 /// of pooling windows (`kernel[0]` of them) are computed into `scratch` and pooled at once,
@@ -418,173 +418,174 @@ pub(crate) fn run<K: Kernels>(steps: &mut [Step], buffers: &mut [Vec<f32>], nonz
     }
 }
 
-/// One step of the float (and grid) kind: the int8 steps own scratch and run above.
+/// One float layer (padding, convolution, pooling, layout, dense, LSTM) with `K`'s kernels;
+/// the other float steps go to [`data_step`], the int8 steps own scratch and run above.
 #[inline(always)]
 fn float_step<K: Kernels>(step: &Step, buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
-    {
-        match step {
-            Step::Pad {
-                from,
-                to,
-                size,
-                origin,
-                padded_width,
-                from_nchw,
-            } => with_output(buffers, *to, |out, buffers| {
-                pad(
-                    &buffers[*from],
-                    *size,
-                    *origin,
-                    *padded_width,
-                    *from_nchw,
-                    out,
-                );
-            }),
-            Step::Conv {
-                padded,
-                weights,
+    match step {
+        Step::Pad {
+            from,
+            to,
+            size,
+            origin,
+            padded_width,
+            from_nchw,
+        } => with_output(buffers, *to, |out, buffers| {
+            pad(
+                &buffers[*from],
+                *size,
+                *origin,
+                *padded_width,
+                *from_nchw,
+                out,
+            );
+        }),
+        Step::Conv {
+            padded,
+            weights,
+            bias,
+            shape,
+            relu,
+            pool,
+            winograd,
+            out,
+        } => {
+            let layer = ConvLayer {
+                weights: weights.as_slice(),
                 bias,
                 shape,
-                relu,
-                pool,
-                winograd,
-                out,
-            } => {
-                let layer = ConvLayer {
-                    weights: weights.as_slice(),
-                    bias,
-                    shape,
-                    relu: *relu,
-                };
-                if let Some(winograd) = winograd
-                    && winograd_conv_pool::<K>(&layer, winograd, *padded, *out, buffers)
-                {
-                    return;
-                }
-                match pool {
-                    None => with_output(buffers, *out, |target, buffers| {
-                        K::conv(
-                            shape,
-                            &buffers[*padded],
-                            layer.weights,
-                            bias,
-                            *relu,
-                            0,
-                            target,
-                        );
-                    }),
-                    Some(pool) => conv_pool::<K>(&layer, pool, *padded, *out, buffers),
-                }
+                relu: *relu,
+            };
+            if let Some(winograd) = winograd
+                && winograd_conv_pool::<K>(&layer, winograd, *padded, *out, buffers)
+            {
+                return;
             }
-            Step::MaxPool {
-                from,
-                to,
-                size,
-                kernel,
-                stride,
-                out,
-            } => with_output(buffers, *to, |target, buffers| {
-                K::max_pool(&buffers[*from], *size, *kernel, *stride, *out, target);
-            }),
-            Step::NhwcToNchw { from, to, size } => with_output(buffers, *to, |target, buffers| {
-                nhwc_to_nchw(&buffers[*from], *size, target);
-            }),
-            Step::Dense {
-                from,
-                weights,
-                bias,
-                rows,
-                relu,
-                to,
-            } => with_output(buffers, *to, |target, buffers| {
-                dense_rows::<K>(
-                    &buffers[*from],
-                    weights,
-                    bias,
-                    *rows,
-                    *relu,
-                    target,
-                    nonzero,
-                );
-            }),
-            Step::Lstm {
-                x,
-                h_in,
-                c_in,
-                joined,
-                weights,
-                bias,
-                gates,
-                h_out,
-                c_out,
-            } => {
-                let ports = LstmBuffers {
-                    x: *x,
-                    h_in: *h_in,
-                    c_in: *c_in,
-                    joined: *joined,
-                    gates: *gates,
-                    h_out: *h_out,
-                    c_out: *c_out,
-                };
-                lstm_step::<K>(&ports, weights, bias, buffers, nonzero);
-            }
-            Step::Copy {
-                from,
-                from_offset,
-                to,
-                to_offset,
-                len,
-            } => with_output(buffers, *to, |target, buffers| {
-                target[*to_offset..to_offset + len]
-                    .copy_from_slice(&buffers[*from][*from_offset..from_offset + len]);
-            }),
-            Step::Gather { from, source, to } => with_output(buffers, *to, |target, buffers| {
-                let input = &buffers[*from];
-                source.for_each(|i, offset| target[i] = input[offset]);
-            }),
-            Step::Relu { from, to, len } => with_output(buffers, *to, |target, buffers| {
-                for (t, &v) in target[..*len].iter_mut().zip(&buffers[*from]) {
-                    *t = v.max(0.0);
-                }
-            }),
-            Step::Binary {
-                op,
-                a,
-                a_index,
-                b,
-                b_index,
-                to,
-            } => with_output(buffers, *to, |target, buffers| {
-                binary(
-                    *op,
-                    (&buffers[*a], a_index),
-                    (&buffers[*b], b_index),
-                    target,
-                );
-            }),
-            Step::Reduce {
-                op,
-                from,
-                target,
-                to,
-            } => with_output(buffers, *to, |out, buffers| {
-                reduce(*op, &buffers[*from], target, out);
-            }),
-            Step::SnapToGrid {
-                from,
-                to,
-                len,
-                grid,
-            } => with_output(buffers, *to, |out, buffers| {
-                for (y, &x) in out[..*len].iter_mut().zip(&buffers[*from]) {
-                    *y = grid.snap(x);
-                }
-            }),
-            Step::QuantizedConv(_) | Step::QuantizedDense(_) => {
-                unreachable!("int8 steps run in `run`")
+            match pool {
+                None => with_output(buffers, *out, |target, buffers| {
+                    K::conv(&layer, &buffers[*padded], 0, target);
+                }),
+                Some(pool) => conv_pool::<K>(&layer, pool, *padded, *out, buffers),
             }
         }
+        Step::MaxPool {
+            from,
+            to,
+            size,
+            kernel,
+            stride,
+            out,
+        } => with_output(buffers, *to, |target, buffers| {
+            K::max_pool(&buffers[*from], *size, *kernel, *stride, *out, target);
+        }),
+        Step::NhwcToNchw { from, to, size } => with_output(buffers, *to, |target, buffers| {
+            nhwc_to_nchw(&buffers[*from], *size, target);
+        }),
+        Step::Dense {
+            from,
+            weights,
+            bias,
+            rows,
+            relu,
+            to,
+        } => with_output(buffers, *to, |target, buffers| {
+            dense_rows::<K>(
+                &buffers[*from],
+                weights,
+                bias,
+                *rows,
+                *relu,
+                target,
+                nonzero,
+            );
+        }),
+        Step::Lstm {
+            x,
+            h_in,
+            c_in,
+            joined,
+            weights,
+            bias,
+            gates,
+            h_out,
+            c_out,
+        } => {
+            let ports = LstmBuffers {
+                x: *x,
+                h_in: *h_in,
+                c_in: *c_in,
+                joined: *joined,
+                gates: *gates,
+                h_out: *h_out,
+                c_out: *c_out,
+            };
+            lstm_step::<K>(&ports, weights, bias, buffers, nonzero);
+        }
+        Step::QuantizedConv(_) | Step::QuantizedDense(_) => {
+            unreachable!("int8 steps run in `run`")
+        }
+        step => data_step(step, buffers),
+    }
+}
+
+/// One step that moves or combines values without a kernel of an instruction set: copies,
+/// gathers, ReLU, elementwise and reduction operators, the grid snap.
+#[inline(always)]
+fn data_step(step: &Step, buffers: &mut [Vec<f32>]) {
+    match step {
+        Step::Copy {
+            from,
+            from_offset,
+            to,
+            to_offset,
+            len,
+        } => with_output(buffers, *to, |target, buffers| {
+            target[*to_offset..to_offset + len]
+                .copy_from_slice(&buffers[*from][*from_offset..from_offset + len]);
+        }),
+        Step::Gather { from, source, to } => with_output(buffers, *to, |target, buffers| {
+            let input = &buffers[*from];
+            source.for_each(|i, offset| target[i] = input[offset]);
+        }),
+        Step::Relu { from, to, len } => with_output(buffers, *to, |target, buffers| {
+            for (t, &v) in target[..*len].iter_mut().zip(&buffers[*from]) {
+                *t = v.max(0.0);
+            }
+        }),
+        Step::Binary {
+            op,
+            a,
+            a_index,
+            b,
+            b_index,
+            to,
+        } => with_output(buffers, *to, |target, buffers| {
+            binary(
+                *op,
+                (&buffers[*a], a_index),
+                (&buffers[*b], b_index),
+                target,
+            );
+        }),
+        Step::Reduce {
+            op,
+            from,
+            target,
+            to,
+        } => with_output(buffers, *to, |out, buffers| {
+            reduce(*op, &buffers[*from], target, out);
+        }),
+        Step::SnapToGrid {
+            from,
+            to,
+            len,
+            grid,
+        } => with_output(buffers, *to, |out, buffers| {
+            for (y, &x) in out[..*len].iter_mut().zip(&buffers[*from]) {
+                *y = grid.snap(x);
+            }
+        }),
+        _ => unreachable!("layers and int8 steps run in `float_step` and `run`"),
     }
 }
 
@@ -730,14 +731,6 @@ fn pad(
     }
 }
 
-/// What every path of a convolution step reads.
-struct ConvLayer<'a> {
-    weights: &'a [f32],
-    bias: &'a [f32],
-    shape: &'a ConvShape,
-    relu: bool,
-}
-
 /// The convolution and its pool by Winograd into buffer `out`, where `K` has the kernels for
 /// the layer; false, with `out` untouched, where not.
 #[inline(always)]
@@ -787,8 +780,7 @@ fn conv_pool<K: Kernels>(
     let pooled_rows = target.chunks_exact_mut(pw * oc).take(ph);
     for (py, pooled) in pooled_rows.enumerate() {
         let first = py * pool.stride[0];
-        let (shape, weights, bias) = (layer.shape, layer.weights, layer.bias);
-        K::conv(shape, input, weights, bias, layer.relu, first, scratch_rows);
+        K::conv(layer, input, first, scratch_rows);
         K::max_pool(
             scratch_rows,
             [rows, ow, oc],

@@ -24,7 +24,7 @@ pub(crate) mod simd;
 mod window_asm;
 pub(crate) mod winograd;
 
-use super::layout::{ConvShape, DenseWeights};
+use super::layout::{ConvLayer, DenseWeights};
 
 /// How `a * b + c` is computed: fused (one rounding, the FMA instruction) or as a product
 /// and a sum.
@@ -58,15 +58,7 @@ impl MulAdd for Separate {
 /// The two hot kernels, as an instruction set provides them.
 pub(crate) trait Kernels {
     /// Output rows `first_row..` of a convolution, as many as `out` holds.
-    fn conv(
-        shape: &ConvShape,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        first_row: usize,
-        out: &mut [f32],
-    );
+    fn conv(layer: &ConvLayer<'_>, padded: &[f32], first_row: usize, out: &mut [f32]);
     /// `y = bias + W x`; `nonzero` is scratch for the indices of `x`'s non-zero values.
     fn dense(x: &[f32], weights: &DenseWeights, bias: &[f32], y: &mut [f32], nonzero: &mut [u32]);
 
@@ -107,27 +99,19 @@ pub(crate) struct Generic<M>(core::marker::PhantomData<M>);
 
 impl<M: MulAdd> Kernels for Generic<M> {
     #[inline(always)]
-    fn conv(
-        shape: &ConvShape,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        first_row: usize,
-        out: &mut [f32],
-    ) {
-        let row = first_row;
+    fn conv(layer: &ConvLayer<'_>, padded: &[f32], first_row: usize, out: &mut [f32]) {
+        let (shape, row) = (layer.shape, first_row);
         // Four channels (the narrow networks' first layers) fill one SSE vector: eight pixels
         // at a time, as eight channels do, where the any-width loop took a scalar multiply-add
         // and its bounds checks per product (callgrind, the narrower float network's whole
         // tick: 16.2 M -> 3.1 M instructions on avx2+fma, 18.7 M -> 3.1 M on sse4.2). Both sum
         // each output's products in the same order from the bias: the same numbers, bit for bit.
         match shape.out_channels {
-            4 => portable::conv::<M, 4, 8>(shape, padded, weights, bias, relu, row, out),
-            8 => portable::conv::<M, 8, 8>(shape, padded, weights, bias, relu, row, out),
-            16 => portable::conv::<M, 16, 4>(shape, padded, weights, bias, relu, row, out),
-            32 => portable::conv::<M, 32, 2>(shape, padded, weights, bias, relu, row, out),
-            _ => portable::conv_any::<M>(shape, padded, weights, bias, relu, row, out),
+            4 => portable::conv::<M, 4, 8>(layer, padded, row, out),
+            8 => portable::conv::<M, 8, 8>(layer, padded, row, out),
+            16 => portable::conv::<M, 16, 4>(layer, padded, row, out),
+            32 => portable::conv::<M, 32, 2>(layer, padded, row, out),
+            _ => portable::conv_any::<M>(layer, padded, row, out),
         }
     }
 
@@ -145,16 +129,9 @@ pub(crate) struct SseKernels;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 impl Kernels for SseKernels {
     #[inline(always)]
-    fn conv(
-        shape: &ConvShape,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        first_row: usize,
-        out: &mut [f32],
-    ) {
+    fn conv(layer: &ConvLayer<'_>, padded: &[f32], first_row: usize, out: &mut [f32]) {
         use self::simd::{Sse, conv_rows};
+        let shape = layer.shape;
         let (ic, row) = (shape.in_channels, first_row);
         // Accumulators, weight vectors and broadcast inputs in registers: sixteen on x86-64,
         // eight on the 32-bit build. Measured with callgrind (`cross/count`): one group of all
@@ -162,33 +139,27 @@ impl Kernels for SseKernels {
         // The first layer (one input channel) gets its inner loop unrolled.
         #[cfg(target_arch = "x86_64")]
         let done = match (shape.out_channels, ic, shape.kernel[1]) {
-            (8, 1, 5) => conv_rows::<Sse, 2, 5, 1, 5>(shape, padded, weights, bias, relu, row, out),
-            (8, _, _) => conv_rows::<Sse, 2, 5, 0, 0>(shape, padded, weights, bias, relu, row, out),
-            (16, 1, 5) => {
-                conv_rows::<Sse, 4, 2, 1, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            (16, 8, 5) => {
-                conv_rows::<Sse, 4, 2, 8, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            (32, 16, 5) => {
-                conv_rows::<Sse, 8, 1, 16, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            _ => conv_rows::<Sse, 4, 2, 0, 0>(shape, padded, weights, bias, relu, row, out),
+            (8, 1, 5) => conv_rows::<Sse, 2, 5, 1, 5>(layer, padded, row, out),
+            (8, _, _) => conv_rows::<Sse, 2, 5, 0, 0>(layer, padded, row, out),
+            (16, 1, 5) => conv_rows::<Sse, 4, 2, 1, 5>(layer, padded, row, out),
+            (16, 8, 5) => conv_rows::<Sse, 4, 2, 8, 5>(layer, padded, row, out),
+            (32, 16, 5) => conv_rows::<Sse, 8, 1, 16, 5>(layer, padded, row, out),
+            _ => conv_rows::<Sse, 4, 2, 0, 0>(layer, padded, row, out),
         };
         // The kernel's width is left to a loop: its taps unrolled, the compiler interleaves
         // them and spills the eight registers (callgrind, fixture CNN: 7.57 M instructions
         // per forward with the width unrolled, 7.31 M with one input channel's loop rolled).
         #[cfg(target_arch = "x86")]
         let done = match (shape.out_channels, ic) {
-            (8, 1) => conv_rows::<Sse, 2, 2, 1, 0>(shape, padded, weights, bias, relu, row, out),
-            (8, _) => conv_rows::<Sse, 2, 2, 0, 0>(shape, padded, weights, bias, relu, row, out),
-            (16, 1) => conv_rows::<Sse, 4, 1, 1, 0>(shape, padded, weights, bias, relu, row, out),
-            (16, 8) => conv_rows::<Sse, 4, 1, 8, 0>(shape, padded, weights, bias, relu, row, out),
-            (32, 16) => conv_rows::<Sse, 4, 1, 16, 0>(shape, padded, weights, bias, relu, row, out),
-            _ => conv_rows::<Sse, 4, 1, 0, 0>(shape, padded, weights, bias, relu, row, out),
+            (8, 1) => conv_rows::<Sse, 2, 2, 1, 0>(layer, padded, row, out),
+            (8, _) => conv_rows::<Sse, 2, 2, 0, 0>(layer, padded, row, out),
+            (16, 1) => conv_rows::<Sse, 4, 1, 1, 0>(layer, padded, row, out),
+            (16, 8) => conv_rows::<Sse, 4, 1, 8, 0>(layer, padded, row, out),
+            (32, 16) => conv_rows::<Sse, 4, 1, 16, 0>(layer, padded, row, out),
+            _ => conv_rows::<Sse, 4, 1, 0, 0>(layer, padded, row, out),
         };
         if !done {
-            Generic::<Separate>::conv(shape, padded, weights, bias, relu, row, out);
+            Generic::<Separate>::conv(layer, padded, row, out);
         }
     }
 
@@ -273,41 +244,24 @@ pub(crate) struct AvxKernels;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 impl Kernels for AvxKernels {
     #[inline(always)]
-    fn conv(
-        shape: &ConvShape,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        first_row: usize,
-        out: &mut [f32],
-    ) {
+    fn conv(layer: &ConvLayer<'_>, padded: &[f32], first_row: usize, out: &mut [f32]) {
         use self::simd::{Avx, conv_rows};
+        let shape = layer.shape;
         let (ic, kw, row) = (shape.in_channels, shape.kernel[1], first_row);
         // Sixteen registers: up to twelve accumulators, the weight vectors and the broadcast
         // input. The first layer of the bottom camera (8 channels, 40 pixels a row) takes
         // blocks of ten, which tile its rows, where twelve recomputed a fifth of them
         // (`CompiledNetwork::profile`: 9.7 µs, half the peak, with twelve).
         let done = match (shape.out_channels, ic, kw) {
-            (8, 1, 5) => {
-                conv_rows::<Avx, 1, 10, 1, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            (8, _, _) => {
-                conv_rows::<Avx, 1, 12, 0, 0>(shape, padded, weights, bias, relu, row, out)
-            }
-            (16, 1, 5) => {
-                conv_rows::<Avx, 2, 5, 1, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            (16, 8, 5) => {
-                conv_rows::<Avx, 2, 5, 8, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            (32, 16, 5) => {
-                conv_rows::<Avx, 2, 5, 16, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            _ => conv_rows::<Avx, 2, 5, 0, 0>(shape, padded, weights, bias, relu, row, out),
+            (8, 1, 5) => conv_rows::<Avx, 1, 10, 1, 5>(layer, padded, row, out),
+            (8, _, _) => conv_rows::<Avx, 1, 12, 0, 0>(layer, padded, row, out),
+            (16, 1, 5) => conv_rows::<Avx, 2, 5, 1, 5>(layer, padded, row, out),
+            (16, 8, 5) => conv_rows::<Avx, 2, 5, 8, 5>(layer, padded, row, out),
+            (32, 16, 5) => conv_rows::<Avx, 2, 5, 16, 5>(layer, padded, row, out),
+            _ => conv_rows::<Avx, 2, 5, 0, 0>(layer, padded, row, out),
         };
         if !done {
-            Generic::<Fused>::conv(shape, padded, weights, bias, relu, row, out);
+            Generic::<Fused>::conv(layer, padded, row, out);
         }
     }
 
@@ -373,40 +327,27 @@ pub(crate) struct Avx512Kernels;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 impl Kernels for Avx512Kernels {
     #[inline(always)]
-    fn conv(
-        shape: &ConvShape,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        first_row: usize,
-        out: &mut [f32],
-    ) {
+    fn conv(layer: &ConvLayer<'_>, padded: &[f32], first_row: usize, out: &mut [f32]) {
         use self::simd::{Avx512, conv_rows};
+        let shape = layer.shape;
         let (ic, kw, row) = (shape.in_channels, shape.kernel[1], first_row);
         // Thirty-two registers: up to twenty accumulators (ten pixels of 32 channels, or
         // twenty of 16), the weight vectors and the broadcast input. Blocks of ten and twenty
         // pixels tile the paper's widths (80, 40, 20, 10).
         let done = match (shape.out_channels, ic, kw) {
-            (16, 1, 5) => {
-                conv_rows::<Avx512, 1, 20, 1, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            (16, 8, 5) => {
-                conv_rows::<Avx512, 1, 10, 8, 5>(shape, padded, weights, bias, relu, row, out)
-            }
-            (32, 16, 5) => {
-                conv_rows::<Avx512, 2, 10, 16, 5>(shape, padded, weights, bias, relu, row, out)
-            }
+            (16, 1, 5) => conv_rows::<Avx512, 1, 20, 1, 5>(layer, padded, row, out),
+            (16, 8, 5) => conv_rows::<Avx512, 1, 10, 8, 5>(layer, padded, row, out),
+            (32, 16, 5) => conv_rows::<Avx512, 2, 10, 16, 5>(layer, padded, row, out),
             (oc, _, _) if oc.is_multiple_of(32) => {
-                conv_rows::<Avx512, 2, 10, 0, 0>(shape, padded, weights, bias, relu, row, out)
+                conv_rows::<Avx512, 2, 10, 0, 0>(layer, padded, row, out)
             }
             (oc, _, _) if oc.is_multiple_of(16) => {
-                conv_rows::<Avx512, 1, 10, 0, 0>(shape, padded, weights, bias, relu, row, out)
+                conv_rows::<Avx512, 1, 10, 0, 0>(layer, padded, row, out)
             }
             _ => false,
         };
         if !done {
-            AvxKernels::conv(shape, padded, weights, bias, relu, row, out);
+            AvxKernels::conv(layer, padded, row, out);
         }
     }
 

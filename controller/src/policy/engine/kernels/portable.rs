@@ -4,7 +4,7 @@
 //! not fit a layer.
 
 use super::MulAdd;
-use crate::policy::engine::layout::{ConvShape, DenseWeights};
+use crate::policy::engine::layout::{ConvLayer, ConvShape, DenseWeights};
 
 /// Convolution of a zero-bordered NHWC input (`padded`: `[rows][padded_width][in]`) with
 /// weights `[ky][kx][in][OC]`, plus bias, optionally clamped at zero, into NHWC `out`:
@@ -13,14 +13,17 @@ use crate::policy::engine::layout::{ConvShape, DenseWeights};
 /// used `P` times; the `P x OC` accumulators stay in vector registers.
 #[inline(always)]
 pub(crate) fn conv<M: MulAdd, const OC: usize, const P: usize>(
-    shape: &ConvShape,
+    layer: &ConvLayer<'_>,
     padded: &[f32],
-    weights: &[f32],
-    bias: &[f32],
-    relu: bool,
     first_row: usize,
     out: &mut [f32],
 ) {
+    let ConvLayer {
+        shape,
+        weights,
+        bias,
+        relu,
+    } = *layer;
     let [_, ow] = shape.out;
     let Ok(bias) = <&[f32; OC]>::try_from(&bias[..OC]) else {
         return;
@@ -99,14 +102,17 @@ fn conv_block<M: MulAdd, const OC: usize, const P: usize>(
 /// [`conv`] for any number of output channels: eight at a time, then the rest.
 #[inline(always)]
 pub(crate) fn conv_any<M: MulAdd>(
-    shape: &ConvShape,
+    layer: &ConvLayer<'_>,
     padded: &[f32],
-    weights: &[f32],
-    bias: &[f32],
-    relu: bool,
     first_row: usize,
     out: &mut [f32],
 ) {
+    let ConvLayer {
+        shape,
+        weights,
+        bias,
+        relu,
+    } = *layer;
     let ic = shape.in_channels;
     let oc = shape.out_channels;
     let [kh, kw] = shape.kernel;
@@ -291,14 +297,20 @@ mod tests {
             let bias = values(4, 3);
             let size = shape.out[0] * out_width * 4;
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let layer = ConvLayer {
+                shape: &shape,
+                weights: &weights,
+                bias: &bias,
+                relu,
+            };
             let (mut blocked, mut any) = (vec![0.0; size], vec![0.0; size]);
-            conv::<Separate, 4, 8>(&shape, &padded, &weights, &bias, relu, 0, &mut blocked);
-            conv_any::<Separate>(&shape, &padded, &weights, &bias, relu, 0, &mut any);
+            conv::<Separate, 4, 8>(&layer, &padded, 0, &mut blocked);
+            conv_any::<Separate>(&layer, &padded, 0, &mut any);
             assert_eq!(bits(&blocked), bits(&any), "{shape:?}");
             assert!(blocked.iter().any(|&x| x != 0.0));
             // One rounding per product (the AVX2 path's; `fmaf` here, the same numbers).
-            conv::<Fused, 4, 8>(&shape, &padded, &weights, &bias, relu, 0, &mut blocked);
-            conv_any::<Fused>(&shape, &padded, &weights, &bias, relu, 0, &mut any);
+            conv::<Fused, 4, 8>(&layer, &padded, 0, &mut blocked);
+            conv_any::<Fused>(&layer, &padded, 0, &mut any);
             assert_eq!(bits(&blocked), bits(&any), "{shape:?}");
         }
     }

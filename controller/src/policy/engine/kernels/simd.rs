@@ -17,7 +17,7 @@ use std::arch::x86::*;
 use std::arch::x86_64::*;
 
 use super::portable::nonzero_indices;
-use crate::policy::engine::layout::{ConvShape, DenseWeights};
+use crate::policy::engine::layout::{ConvLayer, ConvShape, DenseWeights};
 
 /// A vector of `LANES` floats and the operations the kernels need.
 pub(crate) trait Vector: Copy {
@@ -86,6 +86,82 @@ pub(crate) trait Vector: Copy {
     fn max(a: Self, b: Self) -> Self;
 }
 
+/// The methods every vector type writes in the same words, each with its own intrinsics:
+/// `LANES`, `zero`, `splat`, the bounds-checked `load` and `store`, the unchecked loads and
+/// store, `add`, `sub` and `max`. Invoked inside each `impl Vector`, whose own SAFETY note
+/// (the instruction set its functions are compiled with) covers the `unsafe` blocks here.
+macro_rules! vector_ops {
+    (
+        lanes: $lanes:literal,
+        zero: $zero:ident,
+        splat: $splat:ident,
+        load: $load:ident,
+        load_aligned: $load_aligned:ident,
+        store: $store:ident,
+        add: $add:ident,
+        sub: $sub:ident,
+        max: $max:ident,
+    ) => {
+        const LANES: usize = $lanes;
+
+        #[inline(always)]
+        fn zero() -> Self {
+            Self(unsafe { $zero() })
+        }
+
+        #[inline(always)]
+        fn splat(x: f32) -> Self {
+            Self(unsafe { $splat(x) })
+        }
+
+        #[inline(always)]
+        fn load(values: &[f32]) -> Self {
+            let values = &values[..$lanes];
+            Self(unsafe { $load(values.as_ptr()) })
+        }
+
+        #[inline(always)]
+        unsafe fn load_aligned_unchecked(values: *const f32) -> Self {
+            // SAFETY: the caller's promise (alignment included), and the instruction set
+            // the impl is compiled with.
+            Self(unsafe { $load_aligned(values) })
+        }
+
+        #[inline(always)]
+        fn store(self, values: &mut [f32]) {
+            let values = &mut values[..$lanes];
+            unsafe { $store(values.as_mut_ptr(), self.0) }
+        }
+
+        #[inline(always)]
+        unsafe fn load_unchecked(values: *const f32) -> Self {
+            // SAFETY: the caller's promise.
+            Self(unsafe { $load(values) })
+        }
+
+        #[inline(always)]
+        unsafe fn store_unchecked(self, values: *mut f32) {
+            // SAFETY: the caller's promise.
+            unsafe { $store(values, self.0) }
+        }
+
+        #[inline(always)]
+        fn add(a: Self, b: Self) -> Self {
+            Self(unsafe { $add(a.0, b.0) })
+        }
+
+        #[inline(always)]
+        fn sub(a: Self, b: Self) -> Self {
+            Self(unsafe { $sub(a.0, b.0) })
+        }
+
+        #[inline(always)]
+        fn max(a: Self, b: Self) -> Self {
+            Self(unsafe { $max(a.0, b.0) })
+        }
+    };
+}
+
 /// Four floats in an SSE register; product and sum rounded separately.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sse(__m128);
@@ -95,7 +171,18 @@ pub(crate) struct Sse(__m128);
 // functions run inside `crate::policy::engine::x86`'s functions compiled with at least SSE2; every load and
 // store is checked to stay inside its slice first.
 impl Vector for Sse {
-    const LANES: usize = 4;
+    vector_ops! {
+        lanes: 4,
+        zero: _mm_setzero_ps,
+        splat: _mm_set1_ps,
+        load: _mm_loadu_ps,
+        load_aligned: _mm_load_ps,
+        store: _mm_storeu_ps,
+        add: _mm_add_ps,
+        sub: _mm_sub_ps,
+        max: _mm_max_ps,
+    }
+
     // Not on the 32-bit V5 build: its eight registers cannot hold the four broadcasts beside
     // the accumulators, and the spills cost more than the shuffles save (callgrind:
     // 7.97 M instructions per CNN forward against 7.85 M).
@@ -251,63 +338,8 @@ impl Vector for Sse {
     }
 
     #[inline(always)]
-    fn zero() -> Self {
-        Self(unsafe { _mm_setzero_ps() })
-    }
-
-    #[inline(always)]
-    fn splat(x: f32) -> Self {
-        Self(unsafe { _mm_set1_ps(x) })
-    }
-
-    #[inline(always)]
-    fn load(values: &[f32]) -> Self {
-        let values = &values[..4];
-        Self(unsafe { _mm_loadu_ps(values.as_ptr()) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_aligned_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise (alignment included), and the baseline SSE (above).
-        Self(unsafe { _mm_load_ps(values) })
-    }
-
-    #[inline(always)]
-    fn store(self, values: &mut [f32]) {
-        let values = &mut values[..4];
-        unsafe { _mm_storeu_ps(values.as_mut_ptr(), self.0) }
-    }
-
-    #[inline(always)]
     fn mul_add(a: Self, b: Self, c: Self) -> Self {
         Self(unsafe { _mm_add_ps(_mm_mul_ps(a.0, b.0), c.0) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise.
-        Self(unsafe { _mm_loadu_ps(values) })
-    }
-
-    #[inline(always)]
-    unsafe fn store_unchecked(self, values: *mut f32) {
-        // SAFETY: the caller's promise.
-        unsafe { _mm_storeu_ps(values, self.0) }
-    }
-
-    #[inline(always)]
-    fn add(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm_add_ps(a.0, b.0) })
-    }
-
-    #[inline(always)]
-    fn sub(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm_sub_ps(a.0, b.0) })
-    }
-
-    #[inline(always)]
-    fn max(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm_max_ps(a.0, b.0) })
     }
 }
 
@@ -319,7 +351,18 @@ pub(crate) struct Avx(__m256);
 // compiled with AVX, AVX2 and FMA, which `CompiledNetwork::lower` selects only on a CPU that
 // has them; every load and store is checked to stay inside its slice first.
 impl Vector for Avx {
-    const LANES: usize = 8;
+    vector_ops! {
+        lanes: 8,
+        zero: _mm256_setzero_ps,
+        splat: _mm256_set1_ps,
+        load: _mm256_loadu_ps,
+        load_aligned: _mm256_load_ps,
+        store: _mm256_storeu_ps,
+        add: _mm256_add_ps,
+        sub: _mm256_sub_ps,
+        max: _mm256_max_ps,
+    }
+
     const QUAD_BROADCAST: bool = false;
 
     #[inline(always)]
@@ -329,64 +372,8 @@ impl Vector for Avx {
     }
 
     #[inline(always)]
-    fn zero() -> Self {
-        Self(unsafe { _mm256_setzero_ps() })
-    }
-
-    #[inline(always)]
-    fn splat(x: f32) -> Self {
-        Self(unsafe { _mm256_set1_ps(x) })
-    }
-
-    #[inline(always)]
-    fn load(values: &[f32]) -> Self {
-        let values = &values[..8];
-        Self(unsafe { _mm256_loadu_ps(values.as_ptr()) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_aligned_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise (alignment included), and the AVX this is compiled
-        // with (above).
-        Self(unsafe { _mm256_load_ps(values) })
-    }
-
-    #[inline(always)]
-    fn store(self, values: &mut [f32]) {
-        let values = &mut values[..8];
-        unsafe { _mm256_storeu_ps(values.as_mut_ptr(), self.0) }
-    }
-
-    #[inline(always)]
     fn mul_add(a: Self, b: Self, c: Self) -> Self {
         Self(unsafe { _mm256_fmadd_ps(a.0, b.0, c.0) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise.
-        Self(unsafe { _mm256_loadu_ps(values) })
-    }
-
-    #[inline(always)]
-    unsafe fn store_unchecked(self, values: *mut f32) {
-        // SAFETY: the caller's promise.
-        unsafe { _mm256_storeu_ps(values, self.0) }
-    }
-
-    #[inline(always)]
-    fn add(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm256_add_ps(a.0, b.0) })
-    }
-
-    #[inline(always)]
-    fn sub(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm256_sub_ps(a.0, b.0) })
-    }
-
-    #[inline(always)]
-    fn max(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm256_max_ps(a.0, b.0) })
     }
 }
 
@@ -398,7 +385,18 @@ pub(crate) struct Avx512(__m512);
 // compiled with AVX-512F (and AVX2 and FMA), which `CompiledNetwork::lower` selects only on a
 // CPU that has them; every load and store is checked to stay inside its slice first.
 impl Vector for Avx512 {
-    const LANES: usize = 16;
+    vector_ops! {
+        lanes: 16,
+        zero: _mm512_setzero_ps,
+        splat: _mm512_set1_ps,
+        load: _mm512_loadu_ps,
+        load_aligned: _mm512_load_ps,
+        store: _mm512_storeu_ps,
+        add: _mm512_add_ps,
+        sub: _mm512_sub_ps,
+        max: _mm512_max_ps,
+    }
+
     const QUAD_BROADCAST: bool = false;
 
     #[inline(always)]
@@ -408,64 +406,8 @@ impl Vector for Avx512 {
     }
 
     #[inline(always)]
-    fn zero() -> Self {
-        Self(unsafe { _mm512_setzero_ps() })
-    }
-
-    #[inline(always)]
-    fn splat(x: f32) -> Self {
-        Self(unsafe { _mm512_set1_ps(x) })
-    }
-
-    #[inline(always)]
-    fn load(values: &[f32]) -> Self {
-        let values = &values[..16];
-        Self(unsafe { _mm512_loadu_ps(values.as_ptr()) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_aligned_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise (alignment included), and the AVX-512 this is
-        // compiled with (above).
-        Self(unsafe { _mm512_load_ps(values) })
-    }
-
-    #[inline(always)]
-    fn store(self, values: &mut [f32]) {
-        let values = &mut values[..16];
-        unsafe { _mm512_storeu_ps(values.as_mut_ptr(), self.0) }
-    }
-
-    #[inline(always)]
     fn mul_add(a: Self, b: Self, c: Self) -> Self {
         Self(unsafe { _mm512_fmadd_ps(a.0, b.0, c.0) })
-    }
-
-    #[inline(always)]
-    unsafe fn load_unchecked(values: *const f32) -> Self {
-        // SAFETY: the caller's promise.
-        Self(unsafe { _mm512_loadu_ps(values) })
-    }
-
-    #[inline(always)]
-    unsafe fn store_unchecked(self, values: *mut f32) {
-        // SAFETY: the caller's promise.
-        unsafe { _mm512_storeu_ps(values, self.0) }
-    }
-
-    #[inline(always)]
-    fn add(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm512_add_ps(a.0, b.0) })
-    }
-
-    #[inline(always)]
-    fn sub(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm512_sub_ps(a.0, b.0) })
-    }
-
-    #[inline(always)]
-    fn max(a: Self, b: Self) -> Self {
-        Self(unsafe { _mm512_max_ps(a.0, b.0) })
     }
 }
 
@@ -485,14 +427,17 @@ pub(crate) fn conv_rows<
     const IC: usize,
     const KW: usize,
 >(
-    shape: &ConvShape,
+    layer: &ConvLayer<'_>,
     padded: &[f32],
-    weights: &[f32],
-    bias: &[f32],
-    relu: bool,
     first_row: usize,
     out: &mut [f32],
 ) -> bool {
+    let ConvLayer {
+        shape,
+        weights,
+        bias,
+        relu,
+    } = *layer;
     let oc = shape.out_channels;
     let group = VECS * V::LANES;
     // Every size below is checked arithmetic: a crafted shape makes a product wrap, and a

@@ -12,16 +12,7 @@ impl Lowerer {
         input: &str,
         output: &str,
     ) -> Lowered<()> {
-        let value = self.value(input)?.clone();
-        let Value::Tensor {
-            buffer,
-            shape,
-            layout,
-            boolean: false,
-        } = value
-        else {
-            return unsupported("a convolution of something that is not a float tensor");
-        };
+        let (buffer, shape, layout) = self.float_tensor(input, "a convolution")?;
         let weights_name = node
             .input
             .get(1)
@@ -36,25 +27,7 @@ impl Lowerer {
         if n != 1 || wc != c {
             return unsupported(format!("batch {n}, {c} channels for weights of {wc}"));
         }
-        if attributes.int("group").unwrap_or(1) != 1 {
-            return unsupported("grouped convolutions");
-        }
-        if attributes
-            .ints("dilations")
-            .is_some_and(|d| d.iter().any(|&d| d != 1))
-        {
-            return unsupported("dilated convolutions");
-        }
-        if attributes.string("auto_pad").is_some_and(|p| p != "NOTSET") {
-            return unsupported("auto_pad");
-        }
-        if let Some(kernel) = attributes.ints("kernel_shape")
-            && kernel != [kh as i64, kw as i64]
-        {
-            return unsupported("kernel_shape differs from the weights");
-        }
-        let strides = positive(attributes.ints("strides").unwrap_or(vec![1, 1]), 2)?;
-        let pads = non_negative(attributes.ints("pads").unwrap_or(vec![0; 4]), 4)?;
+        let (strides, pads) = conv_geometry(attributes, [kh, kw])?;
         // Each term at most MAX_ELEMENTS (2^24): the sums cannot wrap even in 32 bits.
         let (padded_h, padded_w) = (h + pads[0] + pads[2], w + pads[1] + pads[3]);
         if padded_h < kh || padded_w < kw {
@@ -87,18 +60,7 @@ impl Lowerer {
             self.push(output, Step::QuantizedConv(Box::new(step)));
             return self.define_tensor(output, to, vec![1, oc, out[0], out[1]], Layout::Nhwc);
         }
-        // [oc][c][ky][kx] -> [ky][kx][c][oc]
-        let mut relaid = vec![0.0; weights.len()];
-        for o in 0..oc {
-            for i in 0..c {
-                for y in 0..kh {
-                    for x in 0..kw {
-                        relaid[((y * kw + x) * c + i) * oc + o] =
-                            weights[((o * c + i) * kh + y) * kw + x];
-                    }
-                }
-            }
-        }
+        let relaid = kernel_major(&weights, [oc, c, kh, kw]);
         let padded = self.buffer(padded_len)?;
         self.steps.push(Step::Pad {
             from: buffer,
@@ -139,16 +101,7 @@ impl Lowerer {
         input: &str,
         output: &str,
     ) -> Lowered<()> {
-        let value = self.value(input)?.clone();
-        let Value::Tensor {
-            buffer,
-            shape,
-            layout,
-            boolean: false,
-        } = value
-        else {
-            return unsupported("pooling something that is not a float tensor");
-        };
+        let (buffer, shape, layout) = self.float_tensor(input, "pooling")?;
         if layout != Layout::Nhwc {
             return unsupported("pooling a map that no convolution made");
         }
@@ -193,4 +146,49 @@ impl Lowerer {
         );
         self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc)
     }
+}
+
+/// A convolution's strides and pads (top, left, bottom, right) from its attributes, refusing
+/// what the engine does not compute: groups, dilations, `auto_pad`, a `kernel_shape` other
+/// than the weights' `[kh, kw]`.
+fn conv_geometry(
+    attributes: &Attributes<'_>,
+    [kh, kw]: [usize; 2],
+) -> Lowered<(Vec<usize>, Vec<usize>)> {
+    if attributes.int("group").unwrap_or(1) != 1 {
+        return unsupported("grouped convolutions");
+    }
+    if attributes
+        .ints("dilations")
+        .is_some_and(|d| d.iter().any(|&d| d != 1))
+    {
+        return unsupported("dilated convolutions");
+    }
+    if attributes.string("auto_pad").is_some_and(|p| p != "NOTSET") {
+        return unsupported("auto_pad");
+    }
+    if let Some(kernel) = attributes.ints("kernel_shape")
+        && kernel != [kh as i64, kw as i64]
+    {
+        return unsupported("kernel_shape differs from the weights");
+    }
+    let strides = positive(attributes.ints("strides").unwrap_or(vec![1, 1]), 2)?;
+    let pads = non_negative(attributes.ints("pads").unwrap_or(vec![0; 4]), 4)?;
+    Ok((strides, pads))
+}
+
+/// ONNX's `[oc][c][ky][kx]` weights laid out `[ky][kx][c][oc]`, as the float kernels read them.
+fn kernel_major(weights: &[f32], [oc, c, kh, kw]: [usize; 4]) -> Vec<f32> {
+    let mut relaid = vec![0.0; weights.len()];
+    for o in 0..oc {
+        for i in 0..c {
+            for y in 0..kh {
+                for x in 0..kw {
+                    relaid[((y * kw + x) * c + i) * oc + o] =
+                        weights[((o * c + i) * kh + y) * kw + x];
+                }
+            }
+        }
+    }
+    relaid
 }

@@ -31,16 +31,7 @@ impl Lowerer {
                 return self.define(output, value);
             }
         }
-        let value = self.value(input)?.clone();
-        let Value::Tensor {
-            buffer,
-            shape,
-            layout,
-            boolean: false,
-        } = value
-        else {
-            return unsupported("a Relu of something that is not a float tensor");
-        };
+        let (buffer, shape, layout) = self.float_tensor(input, "a Relu")?;
         let len = elements(&shape)?;
         let to = self.buffer(len)?;
         self.keep_grid(buffer, to);

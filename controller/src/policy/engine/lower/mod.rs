@@ -361,6 +361,20 @@ impl Lowerer {
         })
     }
 
+    /// The float tensor `name` as it is (buffer, shape, layout); `what` names the operation
+    /// for the error where `name` is something else.
+    fn float_tensor(&self, name: &str, what: &str) -> Lowered<(BufferId, Vec<usize>, Layout)> {
+        match self.value(name)? {
+            Value::Tensor {
+                buffer,
+                shape,
+                layout,
+                boolean: false,
+            } => Ok((*buffer, shape.clone(), *layout)),
+            _ => unsupported(format!("{what} of something that is not a float tensor")),
+        }
+    }
+
     /// The float tensor `name`, in the standard layout (converted from NHWC if need be).
     fn standard(&mut self, name: &str) -> Lowered<Value> {
         let value = self.value(name)?.clone();

@@ -155,12 +155,10 @@ impl Lowerer {
         attributes: &Attributes<'_>,
         output: &str,
     ) -> Lowered<()> {
-        Self::plain_quantization(attributes)?;
-        let input = |i: usize| node.input.get(i).filter(|s| !s.is_empty());
-        let x = input(0).ok_or_else(|| Unsupported("no input".into()))?;
-        let scale = self.single_float(input(1).ok_or_else(|| Unsupported("no scale".into()))?)?;
+        let (x, scale_name, zero_name) = quantization_inputs(node, attributes)?;
+        let scale = self.single_float(scale_name)?;
         let zero = self
-            .uint8_zero(input(2))
+            .uint8_zero(zero_name)
             .ok_or_else(|| Unsupported("a zero point that is not one uint8".into()))?;
         let Value::Tensor { boolean: false, .. } = self.value(x)? else {
             return unsupported("quantizing something that is not a float tensor");
@@ -177,13 +175,10 @@ impl Lowerer {
         attributes: &Attributes<'_>,
         output: &str,
     ) -> Lowered<()> {
-        Self::plain_quantization(attributes)?;
-        let input = |i: usize| node.input.get(i).filter(|s| !s.is_empty());
-        let q = input(0).ok_or_else(|| Unsupported("no input".into()))?;
-        let scale_name = input(1).ok_or_else(|| Unsupported("no scale".into()))?;
+        let (q, scale_name, zero_name) = quantization_inputs(node, attributes)?;
         if let Some((source, grid)) = self.pending.get(q).cloned() {
             let scale = self.single_float(scale_name)?;
-            let zero = self.uint8_zero(input(2));
+            let zero = self.uint8_zero(zero_name);
             if scale.to_bits() != grid.scale().to_bits() || zero != Some(grid.zero()) {
                 return unsupported("a DequantizeLinear on another grid than its QuantizeLinear");
             }
@@ -210,7 +205,7 @@ impl Lowerer {
             }
             Some(axis)
         };
-        let zeros = match input(2) {
+        let zeros = match zero_name {
             None => vec![0; scales.len()],
             Some(name) => match self.codes.get(name) {
                 Some(zero)
@@ -508,4 +503,18 @@ pub(super) fn fold_snaps(steps: &mut Vec<Step>, outputs: &[(String, BufferId, us
             index += 1;
         }
     }
+}
+
+/// A QuantizeLinear's or DequantizeLinear's inputs by name (the value, its scale, its zero
+/// point where given), once its attributes ask for nothing but the plain per-tensor or
+/// per-axis uint8 quantization.
+fn quantization_inputs<'n>(
+    node: &'n pb::NodeProto,
+    attributes: &Attributes<'_>,
+) -> Lowered<(&'n String, &'n String, Option<&'n String>)> {
+    Lowerer::plain_quantization(attributes)?;
+    let input = |i: usize| node.input.get(i).filter(|s| !s.is_empty());
+    let value = input(0).ok_or_else(|| Unsupported("no input".into()))?;
+    let scale = input(1).ok_or_else(|| Unsupported("no scale".into()))?;
+    Ok((value, scale, input(2)))
 }
