@@ -177,8 +177,18 @@ enum Command {
         /// Each step is a whole computing tick of the control loop instead of a forward pass:
         /// both cameras deliver a new frame, the loop accepts them, makes both thumbnails, runs
         /// the policy and publishes the command (what DESIGN.md's 2 ms budget covers).
-        #[arg(long)]
+        #[arg(long, conflicts_with_all = ["layer", "layers"])]
         whole_tick: bool,
+        /// Each step runs only layer K of a CNN's compiled plan (on the values a first whole
+        /// pass left in its buffers): one layer's workload, for `cross/cycles` and per-layer
+        /// timing. `--layers` lists the plan's steps.
+        #[arg(long, value_name = "K", conflicts_with = "layers")]
+        layer: Option<usize>,
+        /// Lists the compiled plan's steps (a CNN's), each with its multiply-adds, the bytes
+        /// it reads and writes, and its time per run over `--steps` runs (min and median),
+        /// then one line `layers ` + JSON for tools.
+        #[arg(long)]
+        layers: bool,
     },
 }
 
@@ -243,15 +253,22 @@ fn run_command(cli: Cli) -> anyhow::Result<()> {
         Command::Forward {
             policy,
             steps,
-            no_peak,
-            whole_tick: false,
-        } => forward(&policy, steps, !no_peak, options, config.tick_period),
-        Command::Forward {
-            policy,
-            steps,
             whole_tick: true,
             ..
         } => whole_ticks(&policy, steps, options, config),
+        Command::Forward {
+            policy,
+            steps,
+            layer,
+            layers,
+            ..
+        } if layer.is_some() || layers => layer_passes(&policy, steps, layer, options),
+        Command::Forward {
+            policy,
+            steps,
+            no_peak,
+            ..
+        } => forward(&policy, steps, !no_peak, options, config.tick_period),
         Command::DryRun {
             policy,
             seconds,
@@ -400,14 +417,8 @@ fn finish<P: Policy, C: Clock, E: std::error::Error + Send + Sync + 'static>(
     Ok(printed?)
 }
 
-fn forward(
-    manifest: &Path,
-    steps: u32,
-    measure_peak: bool,
-    options: EngineOptions,
-    budget: Duration,
-) -> anyhow::Result<()> {
-    let mut policy = load_learned_policy(manifest, options)?;
+/// The two thumbnails of the test pattern's first frames: the input of `forward`.
+fn test_pattern_thumbnails() -> (Box<TopThumbnail>, Box<BottomThumbnail>) {
     let pattern = TestPattern::default();
     let (mut top_frame, mut bottom_frame) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
     let (mut top, mut bottom) = (
@@ -418,6 +429,18 @@ fn forward(
     pattern.paint(&mut bottom_frame, 0, Timestamp::ZERO);
     downscale(&top_frame, &mut top);
     downscale(&bottom_frame, &mut bottom);
+    (top, bottom)
+}
+
+fn forward(
+    manifest: &Path,
+    steps: u32,
+    measure_peak: bool,
+    options: EngineOptions,
+    budget: Duration,
+) -> anyhow::Result<()> {
+    let mut policy = load_learned_policy(manifest, options)?;
+    let (top, bottom) = test_pattern_thumbnails();
     // Measured before the passes, on an idle core (see `peak`).
     // An int8 plan against the int8 peak (its few float multiply-adds are thousandths).
     let int8 = policy.engine().int8;
@@ -467,6 +490,77 @@ fn forward(
             100.0 * bound.as_secs_f64() / summary.min.as_secs_f64(),
         )?;
     }
+    Ok(())
+}
+
+/// `forward --layer K` and `forward --layers`: one whole pass on the test pattern's
+/// thumbnails fills the compiled plan's buffers, then `steps` runs of layer K alone (the
+/// workload `cross/cycles` counts), or of every layer in turn with its time per run.
+fn layer_passes(
+    manifest: &Path,
+    steps: u32,
+    layer: Option<usize>,
+    options: EngineOptions,
+) -> anyhow::Result<()> {
+    let mut policy = load_learned_policy(manifest, options)?;
+    let (top, bottom) = test_pattern_thumbnails();
+    policy.step(PolicyInput {
+        top: &top,
+        bottom: &bottom,
+    })?;
+    let network = policy.compiled_cnn_mut().with_context(|| {
+        format!(
+            "{}: per-layer runs need a CNN policy that the compiled engine runs",
+            manifest.display()
+        )
+    })?;
+    let count = network.steps();
+    if let Some(index) = layer {
+        if index >= count {
+            bail!("--layer {index}: the plan has {count} steps (0..{count}; see --layers)");
+        }
+        for _ in 0..steps {
+            network.run_step(index);
+        }
+        writeln!(io::stdout(), "{steps} run(s) of layer {index} of {count}")?;
+        return Ok(());
+    }
+    let mut rows = Vec::with_capacity(count);
+    for (index, report) in network.step_reports().into_iter().enumerate() {
+        let mut times = TickStats::new(Duration::from_secs(1));
+        for _ in 0..steps.max(1) {
+            let start = Instant::now();
+            network.run_step(index);
+            times.record(start.elapsed());
+        }
+        let summary = times.summary().context("no runs timed")?;
+        writeln!(
+            io::stdout(),
+            "{index:>3} {:<28} {:>10} multiply-adds {:>9} weight bytes {:>9} activation bytes \
+             min {:>9.1?} median {:>9.1?}",
+            report.name,
+            report.multiply_adds,
+            report.weight_bytes,
+            report.activation_bytes,
+            summary.min,
+            summary.median,
+        )?;
+        rows.push(serde_json::json!({
+            "index": index,
+            "name": report.name,
+            "multiply_adds": report.multiply_adds,
+            "weight_bytes": report.weight_bytes,
+            "activation_bytes": report.activation_bytes,
+            "min_ns": summary.min.as_nanos() as u64,
+            "median_ns": summary.median.as_nanos() as u64,
+        }));
+    }
+    let isa = network.isa();
+    writeln!(
+        io::stdout(),
+        "layers {}",
+        serde_json::json!({"isa": isa.to_string(), "runs": steps, "steps": rows})
+    )?;
     Ok(())
 }
 

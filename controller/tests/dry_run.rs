@@ -107,3 +107,56 @@ fn a_reader_that_has_gone_ends_a_report_quietly() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(output.status.success(), "{output:?}");
 }
+
+#[test]
+fn forward_layers_lists_the_plan_and_a_single_layer_runs_alone() {
+    let policy = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../models/fixtures/cnn/policy.toml"
+    );
+    let output = controller_command()
+        .args(["--isa", "ssse3", "forward", "--steps", "2", "--layers"])
+        .args(["--policy", policy])
+        .output()
+        .expect("run dribble-controller");
+    assert!(output.status.success(), "{output:?}");
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let json = stdout
+        .lines()
+        .find_map(|line| line.strip_prefix("layers "))
+        .unwrap_or_else(|| panic!("no layers line in {stdout}"));
+    let table: serde_json::Value = serde_json::from_str(json).expect("layers JSON");
+    let steps = table["steps"].as_array().expect("steps");
+    // The fixture CNN: two convolutions a camera and two dense layers, with the padding,
+    // layout and copy steps between them; the layers' multiply-adds add up to the pass's.
+    let convolutions = steps
+        .iter()
+        .filter(|step| step["name"].as_str().is_some_and(|n| n.starts_with("conv")))
+        .count();
+    assert_eq!(convolutions, 4, "{json}");
+    let multiply_adds: u64 = steps
+        .iter()
+        .map(|step| step["multiply_adds"].as_u64().expect("count"))
+        .sum();
+    assert_eq!(multiply_adds, 4_945_664, "{json}");
+    let single = controller_command()
+        .args([
+            "forward", "--steps", "3", "--layer", "1", "--policy", policy,
+        ])
+        .output()
+        .expect("run dribble-controller");
+    assert!(single.status.success(), "{single:?}");
+    assert!(
+        String::from_utf8_lossy(&single.stdout).contains("3 run(s) of layer 1 of"),
+        "{single:?}"
+    );
+    let past = controller_command()
+        .args(["forward", "--layer", "999", "--policy", policy])
+        .output()
+        .expect("run dribble-controller");
+    assert_eq!(past.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&past.stderr).contains("--layer 999: the plan has"),
+        "{past:?}"
+    );
+}

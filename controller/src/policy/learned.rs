@@ -816,6 +816,22 @@ impl OnnxPolicy {
         }
     }
 
+    /// A CNN policy's network where the compiled engine runs it (None for tract, and for
+    /// the H-CNN's and R-CNN's several or stateful networks): for per-layer timing and
+    /// counting (`dribble-controller forward --layer`).
+    pub fn compiled_cnn_mut(&mut self) -> Option<&mut CompiledNetwork> {
+        match self {
+            Self::Cnn(
+                CnnPolicy {
+                    network: Network::Compiled { network, .. },
+                    ..
+                },
+                _,
+            ) => Some(network),
+            _ => None,
+        }
+    }
+
     /// Which engine runs the networks, and why tract does where it does.
     pub fn engine(&self) -> &EngineReport {
         match self {

@@ -39,6 +39,18 @@ pub use lower::{MAX_ELEMENTS, MAX_PLAN_ELEMENTS, Unsupported};
 use layout::BufferId;
 use plan::Step;
 
+/// One step of a plan as a per-layer table shows it ([`CompiledNetwork::step_reports`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StepReport {
+    /// The operator, and for layers with weights their kernel and channels.
+    pub name: String,
+    pub multiply_adds: u64,
+    /// The weights read each run (4 bytes a float, 1 an int8 code).
+    pub weight_bytes: u64,
+    /// The float buffers the step reads and writes (4 bytes a value).
+    pub activation_bytes: u64,
+}
+
 /// A network lowered to a static plan for one instruction set.
 #[derive(Debug)]
 pub struct CompiledNetwork {
@@ -233,6 +245,40 @@ impl CompiledNetwork {
             ));
         }
         report
+    }
+
+    /// Runs step `index` of the plan alone, on the buffers as the last run left them: one
+    /// layer's workload for timing and instruction counts (`dribble-controller forward
+    /// --layer`). Allocates nothing. `index` must be below [`Self::steps`].
+    pub fn run_step(&mut self, index: usize) {
+        execute(
+            self.isa,
+            &mut self.steps[index..index + 1],
+            &mut self.buffers,
+            &mut self.nonzero,
+        );
+    }
+
+    /// Each step's name, multiply-adds and bytes (its weights, and the float buffers it
+    /// reads and writes), for per-layer tables.
+    pub fn step_reports(&self) -> Vec<StepReport> {
+        self.steps
+            .iter()
+            .map(|step| {
+                let (reads, writes) = step.buffers();
+                let activations: usize = reads
+                    .iter()
+                    .chain(&writes)
+                    .map(|&id| self.buffers[id].len())
+                    .sum();
+                StepReport {
+                    name: step.describe(),
+                    multiply_adds: step.multiply_adds(),
+                    weight_bytes: step.weight_bytes(),
+                    activation_bytes: 4 * activations as u64,
+                }
+            })
+            .collect()
     }
 
     /// Runs the plan on the inputs as they are. Allocates nothing.

@@ -358,6 +358,82 @@ impl Step {
         count as u64
     }
 
+    /// A short name for reports (`dribble-controller forward --layers`): the operator, and
+    /// for the layers with weights their kernel and channels.
+    pub(crate) fn describe(&self) -> String {
+        match self {
+            Self::Conv {
+                shape,
+                pool,
+                winograd,
+                ..
+            } => format!(
+                "conv {}x{} {}->{}{}{}{}",
+                shape.kernel[0],
+                shape.kernel[1],
+                shape.in_channels,
+                shape.out_channels,
+                if shape.stride != [1, 1] {
+                    " strided"
+                } else {
+                    ""
+                },
+                if pool.is_some() { " +pool" } else { "" },
+                if winograd.is_some() { " winograd" } else { "" },
+            ),
+            Self::QuantizedConv(conv) => format!(
+                "int8 conv {}x{} {}->{}{}",
+                conv.window.kernel[0],
+                conv.window.kernel[1],
+                conv.size[2],
+                conv.weights.outputs(),
+                if conv.pool.is_some() { " +pool" } else { "" },
+            ),
+            Self::Dense { weights, .. } => {
+                format!("dense {}->{}", weights.inputs(), weights.outputs())
+            }
+            Self::QuantizedDense(dense) => format!(
+                "int8 dense {}->{}",
+                dense.weights.inputs(),
+                dense.weights.outputs()
+            ),
+            Self::Lstm { weights, .. } => {
+                format!("lstm {}->{}", weights.inputs(), weights.outputs())
+            }
+            other => {
+                let name = format!("{other:?}");
+                let operator = name.split([' ', '{', '(']).next().unwrap_or("step");
+                // `NhwcToNchw` -> `nhwc-to-nchw`
+                let mut words = String::new();
+                for (i, c) in operator.chars().enumerate() {
+                    if c.is_uppercase() && i > 0 {
+                        words.push('-');
+                    }
+                    words.push(c.to_ascii_lowercase());
+                }
+                words
+            }
+        }
+    }
+
+    /// The bytes of the weights this step reads each run (f32 or int8 codes).
+    pub(crate) fn weight_bytes(&self) -> u64 {
+        let bytes = match self {
+            Self::Conv { shape, .. } => {
+                4 * shape.kernel[0] * shape.kernel[1] * shape.in_channels * shape.out_channels
+            }
+            Self::Dense { weights, .. } | Self::Lstm { weights, .. } => {
+                4 * weights.inputs() * weights.outputs()
+            }
+            Self::QuantizedConv(conv) => {
+                conv.window.kernel[0] * conv.window.row() * conv.weights.outputs()
+            }
+            Self::QuantizedDense(dense) => dense.weights.inputs() * dense.weights.outputs(),
+            _ => 0,
+        };
+        bytes as u64
+    }
+
     /// The buffers this step reads, and the ones it writes.
     pub(crate) fn buffers(&self) -> (Vec<BufferId>, Vec<BufferId>) {
         match self {
