@@ -69,3 +69,11 @@ def test_the_page_gives_the_tick_with_the_hosts_band_beside_the_flat_method(tmp_
     assert "| v5 | robot | 1,600,000 | 0.50 | 2.00 ms | 1.00-2.00 ms | 1.00-1.43 ms | 2.0 ms |" in page
     assert "| 0 | int8 conv 5x5 1->4 +pool | 1,600,000 | 100 | 1,000 | 800,000 | 1,600,000 | 1000.0 | 50% |" in page
     assert "Median error +25%" in page
+
+
+def test_calls_leave_the_model_and_the_atoms_read_tzcnt_as_bsf():
+    cycles = cycles_tool()
+    assert cycles.for_the_model("call 0x1234", "atom") is None
+    assert cycles.for_the_model("ret", "sapphirerapids") is None
+    assert cycles.for_the_model("tzcnt %eax,%ebp", "atom") == "bsf %eax,%ebp"
+    assert cycles.for_the_model("tzcnt %eax,%ebp", "sapphirerapids") == "tzcnt %eax,%ebp"
