@@ -20,7 +20,7 @@ over whole forward passes and single layers (`forward --layer K`), so that the r
 figures can carry the error as a band.
 
 Standard library only: it runs on a bare machine beside `valgrind`, `objdump` and
-`llvm-mca` (Debian: valgrind, binutils, llvm).
+`llvm-mca` (Debian: valgrind, binutils, llvm-22).
 """
 
 from __future__ import annotations
@@ -44,10 +44,18 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def llvm_mca() -> str:
-    for name in ("llvm-mca", "llvm-mca-16", "llvm-mca-15", "llvm-mca-14"):
+    # The newest first: LLVM 16 on models Golden Cove (this host's Sapphire Rapids) itself,
+    # where 14 took the older Ice Lake server model.
+    for name in ("llvm-mca-22", "llvm-mca-19", "llvm-mca-16", "llvm-mca", "llvm-mca-15", "llvm-mca-14"):
         if shutil.which(name):
             return name
-    sys.exit("cross/cycles.py: needs llvm-mca (Debian: apt-get install llvm)")
+    sys.exit("cross/cycles.py: needs llvm-mca (Debian: apt-get install llvm-22)")
+
+
+def llvm_mca_version() -> str:
+    out = subprocess.run([llvm_mca(), "--version"], capture_output=True, text=True).stdout
+    match = re.search(r"LLVM version (\S+)", out)
+    return f"llvm-mca {match.group(1)}" if match else llvm_mca()
 
 
 def callgrind_counts(command: list[str], env: dict | None = None) -> dict[tuple[str, int], int]:
@@ -388,7 +396,7 @@ def check(args) -> None:
               file=sys.stderr)
     errors = [r["error"] for r in rows]
     summary = {
-        "host_ghz": ghz, "mcpu": mcpu, "cases": len(rows),
+        "host_ghz": ghz, "mcpu": mcpu, "model": llvm_mca_version(), "cases": len(rows),
         "median_error": statistics.median(errors),
         "error_p10": sorted(errors)[len(errors) // 10], "error_p90": sorted(errors)[(9 * len(errors)) // 10],
         "rows": rows,
@@ -458,7 +466,8 @@ def profile(args) -> None:
     commit = run_text(["git", "-C", str(REPO), "rev-parse", "HEAD"]).strip()
     dirty = subprocess.run(["git", "-C", str(REPO), "diff", "--quiet", "HEAD", "--", "controller", "cross"]).returncode != 0
     record = {
-        "build": args.build, "target": args.triple, "isa": args.isa, "mcpu": args.mcpu, "ghz": args.ghz,
+        "build": args.build, "target": args.triple, "isa": args.isa, "mcpu": args.mcpu,
+        "model": llvm_mca_version(), "ghz": args.ghz,
         "policy": directory.name, "int8": int8,
         "peak_multiply_adds_per_cycle": peak,
         "tick": {"instructions": tick["instructions"], "cycles": tick["cycles"],

@@ -41,13 +41,19 @@ def _band(check: dict | None) -> tuple[float, float] | None:
 def host_check_section(check: dict | None) -> list[str]:
     if not check:
         return ["No host check recorded yet (`python3 cross/cycles.py check --out models/performance/host-check.json`)."]
+    layers = [abs(r["error"]) for r in check["rows"] if r["workload"].startswith("layer")]
+    whole = [abs(r["error"]) for r in check["rows"] if not r["workload"].startswith("layer")]
+    mean = lambda values: sum(values) / len(values) if values else float("nan")  # noqa: E731
     lines = [
-        f"On this host ({check['mcpu']} model, clock {check['host_ghz']:.2f} GHz by a chain of dependent "
-        f"multiplications), {check['cases']} workloads: whole forward passes and single layers, "
-        "each the fastest of 2000 runs. Error is model / measured - 1.",
+        f"On this host ({check['mcpu']} model of {check.get('model', 'llvm-mca')}, clock "
+        f"{check['host_ghz']:.2f} GHz by a chain of dependent multiplications), {check['cases']} "
+        "workloads: whole forward passes and single layers, each the fastest of 2000 runs. Error is "
+        "model / measured - 1.",
         "",
         f"Median error {check['median_error']:+.0%}; tenth to ninetieth percentile "
-        f"{check['error_p10']:+.0%} to {check['error_p90']:+.0%}.",
+        f"{check['error_p10']:+.0%} to {check['error_p90']:+.0%}. Mean absolute error over the "
+        f"{len(layers)} single layers (the kernels) {mean(layers):.0%}, over the {len(whole)} whole "
+        f"forward passes {mean(whole):.0%}.",
         "",
         "| policy | instruction set | workload | instructions | model cycles | measured cycles | error |",
         "|---|---|---|---|---|---|---|",
@@ -88,7 +94,8 @@ def layer_section(profile: dict) -> list[str]:
     clock = V5_CLOCK_HZ if profile["build"] == "v5" else V6_CLOCK_HZ
     kind = "int8" if profile["int8"] else "float"
     lines = [
-        f"#### {profile['policy']} on the {profile['build'].upper()} ({CORE[profile['build']]}, {profile['isa']})",
+        f"#### {profile['policy']} on the {profile['build'].upper()} ({CORE[profile['build']]}, {profile['isa']}; "
+        f"{profile.get('model', 'llvm-mca')})",
         "",
         f"The core's {kind} peak by the same model: {profile['peak_multiply_adds_per_cycle']:.2f} multiply-adds "
         "a cycle (three interleaved chains of the engine's inner step).",
