@@ -77,3 +77,7 @@ def test_calls_leave_the_model_and_the_atoms_read_tzcnt_as_bsf():
     assert cycles.for_the_model("ret", "sapphirerapids") is None
     assert cycles.for_the_model("tzcnt %eax,%ebp", "atom") == "bsf %eax,%ebp"
     assert cycles.for_the_model("tzcnt %eax,%ebp", "sapphirerapids") == "tzcnt %eax,%ebp"
+    # AVX and BMI that a host-chosen C library routine brings: not the Atoms' code.
+    assert cycles.for_the_model("vmovdqu (%rsi),%ymm1", "silvermont") == ""
+    assert cycles.for_the_model("bzhi %edx,%eax,%edx", "atom") == ""
+    assert cycles.for_the_model("vmovdqu (%rsi),%ymm1", "sapphirerapids") == "vmovdqu (%rsi),%ymm1"
