@@ -400,19 +400,15 @@ impl Step {
             Self::Lstm { weights, .. } => {
                 format!("lstm {}->{}", weights.inputs(), weights.outputs())
             }
-            other => {
-                let name = format!("{other:?}");
-                let operator = name.split([' ', '{', '(']).next().unwrap_or("step");
-                // `NhwcToNchw` -> `nhwc-to-nchw`
-                let mut words = String::new();
-                for (i, c) in operator.chars().enumerate() {
-                    if c.is_uppercase() && i > 0 {
-                        words.push('-');
-                    }
-                    words.push(c.to_ascii_lowercase());
-                }
-                words
-            }
+            Self::Pad { .. } => "pad".into(),
+            Self::MaxPool { .. } => "max-pool".into(),
+            Self::NhwcToNchw { .. } => "nhwc-to-nchw".into(),
+            Self::Copy { .. } => "copy".into(),
+            Self::Gather { .. } => "gather".into(),
+            Self::Relu { .. } => "relu".into(),
+            Self::Binary { op, .. } => format!("{op:?}").to_lowercase(),
+            Self::Reduce { op, .. } => format!("{op:?}").to_lowercase(),
+            Self::SnapToGrid { .. } => "snap-to-grid".into(),
         }
     }
 
