@@ -27,7 +27,7 @@ import re
 import sys
 from pathlib import Path
 
-from . import cycles_report, seed_ranges
+from . import compiled_nn_report, cycles_report, seed_ranges
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 BOOK = REPOSITORY / "docs" / "src"
@@ -77,7 +77,11 @@ def seeds_page() -> str:
     return "\n".join(lines)
 
 
-GENERATED = {"reference/seeds.md": seeds_page, "design/cycles.md": cycles_report.page}
+GENERATED = {
+    "reference/seeds.md": seeds_page,
+    "design/cycles.md": cycles_report.page,
+    "design/compiled-nn.md": compiled_nn_report.page,
+}
 
 
 def pages() -> list[Path]:
