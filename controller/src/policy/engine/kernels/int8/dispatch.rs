@@ -79,8 +79,9 @@ impl Int8Kernel {
 
     /// `rows`, `[out][in]`, laid out for this kernel: panels of 16 outputs, or on AVX2
     /// panels of 32 where the layer has more than 16 outputs and [`QuadPanels::pairs`]
-    /// where it has at most 16 (a 32-wide panel of a 16-output layer would be half zeros),
-    /// and on SSSE3 one panel of 8 where it has at most 8 (of 4 where at most 4).
+    /// where it has 9 to 16 (a 32-wide panel of a 16-output layer would be half zeros),
+    /// and on SSSE3 (and on AVX2, with SSE4.1's kernels) one panel of 8 where it has at
+    /// most 8 (of 4 where at most 4).
     pub(crate) fn lay_out(
         self,
         rows: &[i8],
@@ -88,6 +89,12 @@ impl Int8Kernel {
         inputs: usize,
     ) -> Result<QuadPanels, WeightOutOfRange> {
         match self.0 {
+            // At most eight outputs (the narrow networks' first layers) the SSE4.1 kernels'
+            // 4- and 8-wide panels beat AVX2's pairs of 16, half of them zeros (robot
+            // package, avx2+fma: the top camera's 1->4 layer 42.5 µs with the pairs, 25.2 µs
+            // on SSSE3's panel: `dribble-controller forward --layers`).
+            Kind::Avx2 if outputs <= 4 => QuadPanels::new(rows, outputs, inputs, 4),
+            Kind::Avx2 if outputs <= 8 => QuadPanels::new(rows, outputs, inputs, 8),
             Kind::Avx2 if outputs > 16 => QuadPanels::new(rows, outputs, inputs, 32),
             Kind::Avx2 => QuadPanels::pairs(rows, outputs, inputs),
             Kind::Ssse3 | Kind::Sse41 if outputs <= 4 => QuadPanels::new(rows, outputs, inputs, 4),
@@ -114,6 +121,12 @@ impl Int8Kernel {
             // only where SSE4.1 was too; each kernel checks its layout.
             Kind::Ssse3 | Kind::Sse41 => unsafe {
                 u8s8_max_product_ssse3(x, weights, acc, zeros, self.0 == Kind::Sse41)
+            },
+            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+            // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected, and every AVX2
+            // CPU has SSE4.1; the 4- and 8-wide panels are SSE4.1's (`Self::lay_out`).
+            Kind::Avx2 if weights.width <= 8 && !weights.pairs => unsafe {
+                u8s8_max_product_ssse3(x, weights, acc, zeros, true)
             },
             #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
             // SAFETY: a `Kind::Avx2` is made only where AVX2 was detected; layout checked.

@@ -11,118 +11,116 @@ use std::arch::x86_64::*;
 use super::panels::{QuadPanels, WeightBlock, write_sums};
 use super::{GROUP, ZeroGroups};
 
-/// One product of a group in assembly text: `pshufd` spreads quad `$quad` of the group over
-/// the lanes (also the copy `pmaddubsw` overwrites), `pmaddubsw` with the aligned weights at
-/// `{w} + $offset` as its memory operand, `pmaddwd` with ones, `paddd` into the sum register
-/// `$sum`. The panels below are these four instructions per quad and sum register.
+/// Products of one group in assembly text, interleaved: for each `(temporary, quad, weight
+/// offset, sum)`, `pshufd` spreads quad `$quad` of the group over the lanes of its own
+/// temporary (also the copy `pmaddubsw` overwrites), then every `pmaddubsw` (the aligned
+/// weights at `{w} + $offset` its memory operand), every `pmaddwd` with ones, every `paddd`
+/// into its sum register. Four instructions a product, as one product after the other took,
+/// but the products' chains side by side: the V5's Atom is in order, and one product's four
+/// instructions each wait for the last (about 2.3 cycles an instruction: llvm-mca's `atom`
+/// model, 47 cycles a group of a 4-wide panel one product after the other, 27 with four
+/// side by side; `silvermont`, the V6's core: 44 and 22).
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-macro_rules! product {
-    ($quad:literal, $offset:literal, $sum:literal) => {
+macro_rules! products {
+    ($(($t:literal, $quad:literal, $offset:literal, $sum:literal)),+ $(,)?) => {
         concat!(
-            "pshufd {t}, {xs}, ",
-            $quad,
-            "\n",
-            "pmaddubsw {t}, xmmword ptr [{w} + ",
-            $offset,
-            "]\n",
-            "pmaddwd {t}, {ones}\n",
-            "paddd {",
-            $sum,
-            "}, {t}\n",
+            $("pshufd {", $t, "}, {xs}, ", $quad, "\n",)+
+            $("pmaddubsw {", $t, "}, xmmword ptr [{w} + ", $offset, "]\n",)+
+            $("pmaddwd {", $t, "}, {ones}\n",)+
+            $("paddd {", $sum, "}, {", $t, "}\n",)+
         )
     };
 }
 
 /// The first `$quads` quads (1 to 4) of one group's products for a 16-wide panel, in assembly
-/// text ([`product`] per quad and weight vector, into `{s0}`..`{s3}`): 16 instructions a quad,
-/// 64 for a whole group, in seven vector registers. Fewer than four only for a row's last
-/// group, whose other quads hold nothing but padding ([`row_asm`]).
+/// text ([`products`] into `{s0}`..`{s3}`, two side by side in `{t0}` and `{t1}`): 16
+/// instructions a quad, 64 for a whole group, in all eight of the V5's registers (the sums,
+/// the input, the ones, two products). Fewer than four only for a row's last group, whose
+/// other quads hold nothing but padding ([`row_asm`]).
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! products16 {
-    (1) => {
+    (@quad $quad:literal, $o0:literal, $o1:literal, $o2:literal, $o3:literal) => {
         concat!(
-            product!("0x00", "0", "s0"),
-            product!("0x00", "16", "s1"),
-            product!("0x00", "32", "s2"),
-            product!("0x00", "48", "s3"),
+            products!(("t0", $quad, $o0, "s0"), ("t1", $quad, $o1, "s1")),
+            products!(("t0", $quad, $o2, "s2"), ("t1", $quad, $o3, "s3")),
         )
+    };
+    (1) => {
+        products16!(@quad "0x00", "0", "16", "32", "48")
     };
     (2) => {
-        concat!(
-            products16!(1),
-            product!("0x55", "64", "s0"),
-            product!("0x55", "80", "s1"),
-            product!("0x55", "96", "s2"),
-            product!("0x55", "112", "s3"),
-        )
+        concat!(products16!(1), products16!(@quad "0x55", "64", "80", "96", "112"))
     };
     (3) => {
-        concat!(
-            products16!(2),
-            product!("0xaa", "128", "s0"),
-            product!("0xaa", "144", "s1"),
-            product!("0xaa", "160", "s2"),
-            product!("0xaa", "176", "s3"),
-        )
+        concat!(products16!(2), products16!(@quad "0xaa", "128", "144", "160", "176"))
     };
     (4) => {
-        concat!(
-            products16!(3),
-            product!("0xff", "192", "s0"),
-            product!("0xff", "208", "s1"),
-            product!("0xff", "224", "s2"),
-            product!("0xff", "240", "s3"),
-        )
+        concat!(products16!(3), products16!(@quad "0xff", "192", "208", "224", "240"))
     };
 }
 
-/// [`products16`] for a panel of 8 outputs in two registers `{s0}`, `{s1}` (the spread is made
-/// twice, as `pmaddubsw` overwrites it): 32 instructions a group where a 16-wide panel of an
-/// 8-output layer would spend 64 on half zero weights.
+/// [`products16`] for a panel of 8 outputs in two registers `{s0}`, `{s1}` (a quad's spread
+/// made once per register, as `pmaddubsw` overwrites it; two quads side by side in `{t0}`..
+/// `{t3}`): 32 instructions a group where a 16-wide panel of an 8-output layer would spend
+/// 64 on half zero weights.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! products8 {
     (1) => {
-        concat!(product!("0x00", "0", "s0"), product!("0x00", "16", "s1"))
+        products!(("t0", "0x00", "0", "s0"), ("t1", "0x00", "16", "s1"))
     };
     (2) => {
-        concat!(
-            products8!(1),
-            product!("0x55", "32", "s0"),
-            product!("0x55", "48", "s1")
+        products!(
+            ("t0", "0x00", "0", "s0"),
+            ("t1", "0x00", "16", "s1"),
+            ("t2", "0x55", "32", "s0"),
+            ("t3", "0x55", "48", "s1"),
         )
     };
     (3) => {
         concat!(
             products8!(2),
-            product!("0xaa", "64", "s0"),
-            product!("0xaa", "80", "s1")
+            products!(("t0", "0xaa", "64", "s0"), ("t1", "0xaa", "80", "s1"))
         )
     };
     (4) => {
         concat!(
-            products8!(3),
-            product!("0xff", "96", "s0"),
-            product!("0xff", "112", "s1")
+            products8!(2),
+            products!(
+                ("t0", "0xaa", "64", "s0"),
+                ("t1", "0xaa", "80", "s1"),
+                ("t2", "0xff", "96", "s0"),
+                ("t3", "0xff", "112", "s1"),
+            )
         )
     };
 }
 
-/// [`products16`] for a panel of 4 outputs in one register `{s0}`: 16 instructions a group,
-/// where an 8-wide panel of a 4-output layer (the bottom camera's first layer in the narrow
-/// CNN) spends 32, half on zero weights.
+/// [`products16`] for a panel of 4 outputs in one register `{s0}`, the group's four quads
+/// side by side in `{t0}`..`{t3}`: 16 instructions a group, where an 8-wide panel of a
+/// 4-output layer (the cameras' first layers in the narrow CNN) spends 32, half on zero
+/// weights.
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 macro_rules! products4 {
     (1) => {
-        product!("0x00", "0", "s0")
+        products!(("t0", "0x00", "0", "s0"))
     };
     (2) => {
-        concat!(products4!(1), product!("0x55", "16", "s0"))
+        products!(("t0", "0x00", "0", "s0"), ("t1", "0x55", "16", "s0"))
     };
     (3) => {
-        concat!(products4!(2), product!("0xaa", "32", "s0"))
+        products!(
+            ("t0", "0x00", "0", "s0"),
+            ("t1", "0x55", "16", "s0"),
+            ("t2", "0xaa", "32", "s0"),
+        )
     };
     (4) => {
-        concat!(products4!(3), product!("0xff", "48", "s0"))
+        products!(
+            ("t0", "0x00", "0", "s0"),
+            ("t1", "0x55", "16", "s0"),
+            ("t2", "0xaa", "32", "s0"),
+            ("t3", "0xff", "48", "s0"),
+        )
     };
 }
 
@@ -146,9 +144,9 @@ macro_rules! products4 {
 macro_rules! row_asm {
     (skip, $($rest:tt)*) => {
         row_asm!(@row concat!(
-            "pxor {t}, {t}\n",
-            "pcmpeqb {t}, {xs}\n",
-            "pmovmskb {mask:e}, {t}\n",
+            "pxor {t0}, {t0}\n",
+            "pcmpeqb {t0}, {xs}\n",
+            "pmovmskb {mask:e}, {t0}\n",
             "cmp {mask:e}, 0xffff\n",
             "je 3f\n",
         ), $($rest)*, mask = out(reg) _,)
@@ -157,7 +155,7 @@ macro_rules! row_asm {
         row_asm!(@row "", $($rest)*,)
     };
     (@row $test:expr, $products:ident, $tail:tt, $step:literal, $bytes:expr, $vectors:expr,
-        $groups:expr, $ones:expr, [$($s:ident),+], $($extra:tt)*) => {
+        $groups:expr, $ones:expr, [$($s:ident),+], [$($t:ident),+], $($extra:tt)*) => {
         core::arch::asm!(
             "test {n}, {n}",
             "jz 4f",
@@ -177,7 +175,7 @@ macro_rules! row_asm {
             w = inout(reg) $vectors => _,
             n = inout(reg) $groups - 1 => _,
             xs = out(xmm_reg) _,
-            t = out(xmm_reg) _,
+            $($t = out(xmm_reg) _,)+
             ones = in(xmm_reg) $ones,
             $($s = inout(xmm_reg) $s,)+
             $($extra)*
@@ -250,7 +248,7 @@ macro_rules! merge_largest {
 /// are x86's.)
 macro_rules! ssse3_kernel {
     ($(#[$doc:meta])* $name:ident, $products:ident, $step:literal, $width:literal, $registers:literal,
-        [$($s:ident),+]) => {
+        [$($s:ident),+], [$($t:ident),+]) => {
         $(#[$doc])*
         ///
         /// # Safety
@@ -272,11 +270,11 @@ macro_rules! ssse3_kernel {
             // and, where `SSE41`, SSE4.1.
             match zeros {
                 ZeroGroups::Skip => {
-                    let row = ssse3_row!(skip, $products, $step, ones, [$($s),+]);
+                    let row = ssse3_row!(skip, $products, $step, ones, [$($s),+], [$($t),+]);
                     unsafe { ssse3_panels::<$width, $registers>(x, weights, acc, row) }
                 }
                 ZeroGroups::Compute => {
-                    let row = ssse3_row!(compute, $products, $step, ones, [$($s),+]);
+                    let row = ssse3_row!(compute, $products, $step, ones, [$($s),+], [$($t),+]);
                     unsafe { ssse3_panels::<$width, $registers>(x, weights, acc, row) }
                 }
             }
@@ -289,14 +287,14 @@ macro_rules! ssse3_kernel {
 /// the maxima at `largest` (`SSE41`: with `pmaxsd`). `TAIL` and `SSE41` are the kernel's
 /// constants, so each kernel keeps one arm of each choice.
 macro_rules! ssse3_row {
-    ($zeros:ident, $products:ident, $step:literal, $ones:ident, [$($s:ident),+]) => {
+    ($zeros:ident, $products:ident, $step:literal, $ones:ident, [$($s:ident),+], [$($t:ident),+]) => {
         |inputs: *const u8, vectors: *const __m128i, groups: usize, largest: *mut __m128i| unsafe {
             $(let mut $s = _mm_setzero_si128();)+
             match TAIL {
-                1 => row_asm!($zeros, $products, 1, $step, inputs, vectors, groups, $ones, [$($s),+]),
-                2 => row_asm!($zeros, $products, 2, $step, inputs, vectors, groups, $ones, [$($s),+]),
-                3 => row_asm!($zeros, $products, 3, $step, inputs, vectors, groups, $ones, [$($s),+]),
-                _ => row_asm!($zeros, $products, 4, $step, inputs, vectors, groups, $ones, [$($s),+]),
+                1 => row_asm!($zeros, $products, 1, $step, inputs, vectors, groups, $ones, [$($s),+], [$($t),+]),
+                2 => row_asm!($zeros, $products, 2, $step, inputs, vectors, groups, $ones, [$($s),+], [$($t),+]),
+                3 => row_asm!($zeros, $products, 3, $step, inputs, vectors, groups, $ones, [$($s),+], [$($t),+]),
+                _ => row_asm!($zeros, $products, 4, $step, inputs, vectors, groups, $ones, [$($s),+], [$($t),+]),
             }
             if SSE41 {
                 merge_largest!(sse41, largest, [$($s),+]);
@@ -347,23 +345,23 @@ ssse3_kernel!(
     /// time: one load, with [`ZeroGroups::Skip`] one test that skips sixteen zero inputs, and
     /// `pshufd` to spread each quad over the lanes, which also gives `pmaddubsw` the copy it
     /// overwrites; the weights are its aligned memory operand. That is four instructions per
-    /// sixteen outputs of a quad, with the sums, the input, the ones and one product in seven
-    /// of the V5's eight registers. Each row's sums then go into the running maxima in memory
+    /// sixteen outputs of a quad, with the sums, the input, the ones and two products side by
+    /// side in the V5's eight registers. Each row's sums then go into the running maxima in memory
     /// ([`merge_largest`]). The row loop is in assembly ([`row_asm`]; callgrind, int8 CNN
     /// forward: V5 6.46 M -> 5.57 M, V6 4.86 M -> 4.64 M).
-    u8s8_max_product_16c_ssse3, products16, "256", 16, 4, [s0, s1, s2, s3]
+    u8s8_max_product_16c_ssse3, products16, "256", 16, 4, [s0, s1, s2, s3], [t0, t1]
 );
 
 ssse3_kernel!(
     /// [`u8s8_max_product_16c_ssse3`] for layers of at most 8 outputs: one panel of 8 in two registers
     /// ([`products8`]).
-    u8s8_max_product_8c_ssse3, products8, "128", 8, 2, [s0, s1]
+    u8s8_max_product_8c_ssse3, products8, "128", 8, 2, [s0, s1], [t0, t1, t2, t3]
 );
 
 ssse3_kernel!(
     /// [`u8s8_max_product_16c_ssse3`] for layers of at most 4 outputs: one panel of 4 in one register
     /// ([`products4`]).
-    u8s8_max_product_4c_ssse3, products4, "64", 4, 1, [s0]
+    u8s8_max_product_4c_ssse3, products4, "64", 4, 1, [s0], [t0, t1, t2, t3]
 );
 
 /// The cell, panel and row loops of the SSSE3 kernels: for each cell of `acc` and each panel
