@@ -16,7 +16,7 @@ controller computed, at the cameras' 30 Hz):
 |---|---|
 | `observation.images.top`, `observation.images.bottom` | the two thumbnails (160x120 and 80x60 luma), as lossless PNG images in the parquet files (three equal channels, as LeRobot's image features are RGB) |
 | `action` | the teacher's command: forward, left, turn, normalised to [-1, 1] |
-| `observation.state` | zeros: the robot has no state beyond its images (ACT and Diffusion ask for one) |
+| `observation.state` | two zeros: the robot has no state beyond its images, but Diffusion asks for one (and LeRobot's loader hands a one-value feature over as a scalar, which ACT's state projection refuses: "mat1 and mat2 shapes cannot be multiplied (1x8 and 1x256)" on a batch of 8) |
 | `teacher.phase` | the teacher's phase (0 search, 1 approach, 2 align, 3 dribble) |
 | `episode.seed` | the episode's seed |
 | `truth.robot_pose`, `truth.ball`, `truth.time_s` | ground truth beside the images (never a policy input) |
@@ -52,7 +52,7 @@ def features(labelled: bool) -> dict:
     found = {
         "observation.images.top": image(120, 160),
         "observation.images.bottom": image(60, 80),
-        "observation.state": {"dtype": "float32", "shape": (1,), "names": ["none"]},
+        "observation.state": {"dtype": "float32", "shape": (2,), "names": ["zero_0", "zero_1"]},
         "action": {"dtype": "float32", "shape": (3,), "names": ["forward", "left", "turn"]},
         "teacher.phase": {"dtype": "int64", "shape": (1,), "names": ["phase"]},
         "episode.seed": {"dtype": "int64", "shape": (1,), "names": ["seed"]},
@@ -92,7 +92,7 @@ def export(source: Path, root: Path, repo_id: str) -> dict:
             frame = {
                 "observation.images.top": np.repeat(episode.top[row][:, :, None], 3, axis=2),
                 "observation.images.bottom": np.repeat(episode.bottom[row][:, :, None], 3, axis=2),
-                "observation.state": np.zeros(1, np.float32),
+                "observation.state": np.zeros(2, np.float32),
                 "action": episode.command[row].astype(np.float32),
                 "teacher.phase": np.array([episode.phase[row]], np.int64),
                 "episode.seed": np.array([episode.seed], np.int64),

@@ -65,6 +65,16 @@ def test_lerobot_reads_an_export_as_the_same_rows(tmp_path):
     checked = run("check", str(source), str(tmp_path / "lerobot"))
     assert checked.returncode == 0, checked.stderr
     assert "the same rows" in checked.stdout
+    # A frame as LeRobot's policies get it: the state a vector (a one-value feature comes
+    # back as a scalar, which ACT's state projection refuses), the images channels first.
+    shapes = subprocess.run(
+        [str(LEROBOT_VENV / "bin" / "python"), "-c",
+         "import sys; from lerobot.datasets.lerobot_dataset import LeRobotDataset; "
+         "f = LeRobotDataset('dribble/test', root=sys.argv[1])[0]; "
+         "print(tuple(f['observation.state'].shape), tuple(f['observation.images.top'].shape))",
+         str(tmp_path / "lerobot")], capture_output=True, text=True)
+    assert shapes.returncode == 0, shapes.stderr
+    assert shapes.stdout.split("\n")[-2] == "(2,) (3, 120, 160)"
 
 
 @pytest.mark.skipif(not (LEROBOT_VENV / "bin" / "python").exists(), reason="no LeRobot environment (scripts/lerobot makes one)")
