@@ -326,7 +326,7 @@ def compare(args) -> dict:
     host = (ROOT / "models/policy/HOST_MODEL").read_text().strip()
     robot = (ROOT / "models/policy/ROBOT_MODEL").read_text().strip()
     robot_float = robot.removesuffix("-int8")
-    networks = [("paper-width fixture CNN", "models/fixtures/cnn", None),
+    networks = [("paper-width fixture CNN", "models/fixtures/cnn", "models/fixtures/cnn-int8"),
                 ("host model", f"models/policy/{host}", f"models/policy/{host}-int8"),
                 ("robot package's float student", f"models/policy/{robot_float}", f"models/policy/{robot}")]
     rows = []
