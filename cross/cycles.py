@@ -36,6 +36,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import tomllib
 from collections import defaultdict
 from pathlib import Path
 
@@ -477,7 +478,7 @@ def profile(args) -> None:
             "share_of_peak": row["multiply_adds"] / (model["cycles"] * peak) if model["cycles"] else 0.0,
         })
     directory = Path(policy).parent
-    networks = re.findall(r'"([^"]+\.onnx)"', (directory / "policy.toml").read_text())
+    networks = tomllib.loads((directory / "policy.toml").read_text())["networks"]
     commit = run_text(["git", "-C", str(REPO), "rev-parse", "HEAD"]).strip()
     dirty = subprocess.run(["git", "-C", str(REPO), "diff", "--quiet", "HEAD", "--", "controller", "cross"]).returncode != 0
     record = {

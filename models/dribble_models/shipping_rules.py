@@ -128,14 +128,53 @@ V5_TICK_BUDGET = 1_680_000
 V6_TICK_BUDGET = 1_146_000
 
 
+#: The computing-tick budgets in milliseconds (issue 29's targets) that the pipeline model's
+#: estimate is held to.
+V5_TICK_BUDGET_MS = 1.5
+V6_TICK_BUDGET_MS = 0.6
+
+
+def networks_sha256(directory: Path) -> list[str]:
+    """The SHA-256 of each network file the directory's manifest names, in its order."""
+    networks = load(directory / "policy.toml")["networks"]
+    return [hashlib.sha256((directory / n).read_bytes()).hexdigest() for n in networks]
+
+
+def pipeline_tick_ms(directory: Path, build: str) -> float | None:
+    """The slow end of the pipeline model's computing tick on the `build` ("v5" or "v6") robot
+    build, in milliseconds (issue 49): `cross/cycles`' cycles for a tick
+    (models/performance/<build>-<name>.json, counted on exactly the networks the directory
+    holds now) over one plus the host check's tenth-percentile error
+    (models/performance/host-check.json: a model that over-counted the host by that much is
+    taken to over-count the robot as much), at the robot's clock. None without both files."""
+    performance = directory.parent.parent / "performance"
+    profile = read_json(performance / f"{build}-{directory.name}.json")
+    check = read_json(performance / "host-check.json")
+    if profile is None or check is None or profile.get("networks_sha256") != networks_sha256(directory):
+        return None
+    return profile["tick"]["cycles"] / (1 + check["error_p10"]) / (profile["ghz"] * 1e9) * 1e3
+
+
+def tick_fit(directory: Path, build: str) -> tuple[bool, float, str] | None:
+    """Whether an int8 policy's computing tick fits the `build`'s budget, its estimate in
+    milliseconds (for ordering) and how it was judged: by the pipeline model's slow end where
+    `cross/cycles` profiled these networks ([`pipeline_tick_ms`]), else by the flat method's
+    instruction budget (`cross/count --tick --record`); None where neither was measured."""
+    budget_ms, budget = (V5_TICK_BUDGET_MS, V5_TICK_BUDGET) if build == "v5" else (V6_TICK_BUDGET_MS, V6_TICK_BUDGET)
+    ms = pipeline_tick_ms(directory, build)
+    if ms is not None:
+        return ms <= budget_ms, ms, f"{ms:.2f} ms of {budget_ms} by the pipeline model's slow end"
+    instructions = recorded_tick(directory, build)
+    if instructions is None:
+        return None
+    return instructions <= budget, instructions / budget * budget_ms, f"{instructions:,} instructions of {budget:,}"
+
+
 def recorded_tick(directory: Path, build: str) -> int | None:
     """Instructions per computing tick on the `build` ("v5" or "v6") robot build, as `cross/count
     v5|v6 --tick --record` left them, if counted on exactly the networks the directory holds now."""
     record = read_json(directory / f"{build}_tick.json")
-    if record is None:
-        return None
-    networks = load(directory / "policy.toml")["networks"]
-    if record.get("networks_sha256") != [hashlib.sha256((directory / n).read_bytes()).hexdigest() for n in networks]:
+    if record is None or record.get("networks_sha256") != networks_sha256(directory):
         return None
     return int(record["instructions"])
 
@@ -192,29 +231,27 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     Candidates are the int8 policies beside the shipped model (`<float model>-int8`, made by
     dribble_models.quantize from exactly that float model's networks) that keep the quality
     (`int8_quality`: validation error, and goals on the shipped model's selection seeds against
-    the shipped model's interval). Of those whose recorded V5 tick (`v5_tick.json`) fits
-    `V5_TICK_BUDGET`, the ones whose V6 tick (`v6_tick.json`) fits `V6_TICK_BUDGET` too come
-    first (the package runs on both robots), then the most selection goals, then the fewest V5
-    instructions; if none fits the V5, the shipped model's own twin where it keeps the quality;
-    else the shipped model. The choice reads the selection seeds only: closed loops on test seeds take no part;
+    the shipped model's interval). Of those whose V5 tick fits its budget (`tick_fit`: the
+    pipeline model's slow end where `cross/cycles` profiled the networks, else the recorded
+    instruction count against `V5_TICK_BUDGET`), the ones whose V6 tick fits too come first
+    (the package runs on both robots), then the most selection goals, then the shortest V5
+    tick; if none fits the V5, the shipped model's own twin where it keeps the quality; else
+    the shipped model. The choice reads the selection seeds only: closed loops on test seeds take no part;
     the robot policy's are reported beside it."""
     shipped_run = read_selection(shipped / "select.json")
     fitting = []
     for twin in sorted(shipped.parent.glob("*-int8")):
         kept, measured, goals = int8_quality(twin, shipped_run)
-        instructions = recorded_tick(twin, "v5")
-        if kept and instructions is not None and instructions <= V5_TICK_BUDGET:
-            v6 = recorded_tick(twin, "v6")
-            fits_v6 = v6 is not None and v6 <= V6_TICK_BUDGET
-            fitting.append((not fits_v6, -goals, instructions, twin.name, measured, v6))
+        v5 = tick_fit(twin, "v5")
+        if kept and v5 is not None and v5[0]:
+            v6 = tick_fit(twin, "v6")
+            fits_v6 = v6 is not None and v6[0]
+            fitting.append((not fits_v6, -goals, v5[1], twin.name, measured, v5[2], v6))
     if fitting:
-        misses_v6, _, instructions, name, measured, v6 = min(fitting)
-        v6_text = "not counted" if v6 is None else f"{v6:,} of {V6_TICK_BUDGET:,}"
+        misses_v6, _, _, name, measured, v5_text, v6 = min(fitting)
+        v6_text = "not counted" if v6 is None else v6[2]
         fits = "the V5 tick" + ("" if misses_v6 else " and the V6 tick")
-        return name, (
-            f"keeps the quality and fits {fits} (V5: {instructions:,} instructions of {V5_TICK_BUDGET:,}; "
-            f"V6: {v6_text}): {measured}"
-        )
+        return name, f"keeps the quality and fits {fits} (V5: {v5_text}; V6: {v6_text}): {measured}"
     twin = shipped.parent / f"{shipped.name}-int8"
     if not (twin / "policy.toml").is_file():
         return shipped.name, f"no int8 policy fits the V5 tick and keeps the quality, and there is no int8 twin {twin}"

@@ -171,7 +171,7 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
     _tick(models / "narrow-int8", shipping_rules.V6_TICK_BUDGET, "v6")
     _selection(tmp_path / "selection" / "narrow-int8.json", 40)
     name, why = shipping_rules.robot_policy(shipped)
-    assert name == "narrow-int8" and "and the V6 tick" in why and "V6: 1,146,000 of 1,146,000" in why
+    assert name == "narrow-int8" and "and the V6 tick" in why and "V6: 1,146,000 instructions of 1,146,000" in why
     _tick(models / "narrow-int8", shipping_rules.V6_TICK_BUDGET + 1, "v6")
     assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
 
@@ -201,3 +201,42 @@ def test_lerobots_path_is_set_beside_dribble_eval_on_the_same_seeds(tmp_path):
     (lerobot / "eval-m.json").write_text(json.dumps(run))
     with pytest.raises(ReadmeError, match="does not hold the seeds"):
         lerobot_agreement(lerobot, models)
+
+
+def _profile(models: Path, name: str, build: str, cycles: int, ghz: float, p10: float) -> None:
+    """`cross/cycles`' profile of a policy's tick and the host check's error band."""
+    performance = models.parent / "performance"
+    performance.mkdir(exist_ok=True)
+    networks = [hashlib.sha256((models / name / "policy.onnx").read_bytes()).hexdigest()]
+    (performance / f"{build}-{name}.json").write_text(
+        json.dumps({"build": build, "ghz": ghz, "tick": {"cycles": cycles}, "networks_sha256": networks}))
+    (performance / "host-check.json").write_text(json.dumps({"error_p10": p10, "error_p90": 0.9}))
+
+
+def test_the_pipeline_models_slow_end_judges_the_tick_where_the_networks_were_profiled(tmp_path):
+    models = tmp_path / "policy"
+    shipped, narrow = models / "best", models / "narrow"
+    _policy(shipped, 0.100)
+    _selection(shipped / "select.json", 44)
+    _policy(narrow, 0.120)
+    _policy(models / "narrow-int8", 0.125, [hashlib.sha256(b"narrow").hexdigest()])
+    _selection(tmp_path / "selection" / "narrow-int8.json", 42)
+    # Its instruction counts fit both flat budgets.
+    _tick(models / "narrow-int8", 1_000_000)
+    _tick(models / "narrow-int8", 1_000_000, "v6")
+    assert "and the V6 tick" in shipping_rules.robot_policy(shipped)[1]
+    # The pipeline model's cycles over (1 + the host's tenth-percentile error) take their place:
+    # 1,000,000 cycles at 1.91 GHz with p10 -0.05 is 0.551 ms, inside 0.6; with p10 -0.2, 0.654.
+    _profile(models, "narrow-int8", "v6", 1_000_000, 1.91, -0.05)
+    name, why = shipping_rules.robot_policy(shipped)
+    assert name == "narrow-int8" and "V6: 0.55 ms of 0.6 by the pipeline model's slow end" in why
+    _profile(models, "narrow-int8", "v6", 1_000_000, 1.91, -0.2)
+    name, why = shipping_rules.robot_policy(shipped)
+    assert name == "narrow-int8" and "and the V6 tick" not in why and "V6: 0.65 ms of 0.6" in why
+    # Over the V5's budget by the pipeline model it is no candidate, whatever its count says.
+    _profile(models, "narrow-int8", "v5", 2_600_000, 1.6, 0.0)
+    assert shipping_rules.robot_policy(shipped)[0] == "best"
+    # A profile of other networks than the directory holds now does not count.
+    (models / "narrow-int8" / "policy.onnx").write_bytes(b"retrained")
+    _tick(models / "narrow-int8", 1_000_000)
+    assert shipping_rules.robot_policy(shipped)[1].count("instructions of") == 1
