@@ -39,6 +39,7 @@ from .shipping_rules import (
     Candidate,
     chosen_seeds,
     int8_quality,
+    pipeline_tick_ms,
     read_selection,
     recorded_tick,
     robot_policy,
@@ -395,13 +396,17 @@ V6_CLOCK_HZ, V6_PER_CYCLE = 1.91e9, (1.0, 1.5)
 
 
 def tick_cell(directory: Path, build: str) -> str:
-    """A robot build's recorded computing tick: instructions and the flat estimate in ms."""
+    """A robot build's recorded computing tick: instructions and the flat estimate in ms, and
+    where `cross/cycles` profiled these networks the slow end of the pipeline model's estimate
+    (what the robot package's rule judges by: `shipping_rules.tick_fit`)."""
     instructions = recorded_tick(directory, build)
     if instructions is None:
         return "not counted"
     clock, (low, high) = (V5_CLOCK_HZ, V5_PER_CYCLE) if build == "v5" else (V6_CLOCK_HZ, V6_PER_CYCLE)
     fast, slow = instructions / (high * clock) * 1e3, instructions / (low * clock) * 1e3
-    return f"{instructions:,} instructions ({fast:.2f}-{slow:.2f} ms)"
+    cell = f"{instructions:,} instructions ({fast:.2f}-{slow:.2f} ms)"
+    pipeline = pipeline_tick_ms(directory, build)
+    return cell if pipeline is None else f"{cell}; pipeline model up to {pipeline:.2f} ms"
 
 
 def status_table(models: Path) -> str:
