@@ -39,6 +39,10 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from . import contract
+from . import manifest as policy_manifest
+from .cluster import binary_dir
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 PREFIX = pathlib.Path(os.environ.get("DRIBBLE_COMPILED_NN", pathlib.Path.home() / ".cache/dribble/compiled-nn"))
 KERAS_VERSION = "2.4.0"  # the newest layout CompiledNN's reader knows (it refuses Keras 3)
@@ -235,9 +239,7 @@ def _driver() -> pathlib.Path:
 
 
 def _controller() -> pathlib.Path:
-    bin_dir = os.environ.get("DRIBBLE_BIN_DIR")
-    target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
-    path = pathlib.Path(bin_dir) / "dribble-controller" if bin_dir else target / "release" / "dribble-controller"
+    path = binary_dir() / "dribble-controller"
     if not path.exists():
         sys.exit(f"compiled_nn: {path} is missing: cargo build --release --bin dribble-controller")
     return path
@@ -288,15 +290,12 @@ def _per_pass(command: list[str]) -> int:
 
 def _commands_agree(policy: pathlib.Path, h5: pathlib.Path, isa: str, cases: int = 8) -> dict:
     """CompiledNN's output against onnxruntime's on `cases` inputs (thumbnails with smooth
-    structure and noise, scaled as the manifest says)."""
+    structure and noise, made the network's input as the manifest's normalisation says)."""
     import onnxruntime as ort
 
-    from . import manifest as policy_manifest
-
     normalisation = policy_manifest.load(policy / "policy.toml").get("normalisation", {})
-    if normalisation.get("standardise"):
-        raise Unsupported("a standardised-input policy (the comparison feeds scaled thumbnails)")
-    scale = float(normalisation.get("scale", 1.0 / 255.0))
+    standardise = bool(normalisation.get("standardise", False))
+    scale = float(normalisation.get("scale", contract.INPUT_SCALE))
     session = ort.InferenceSession(str(policy / "policy.onnx"), providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(49)
     worst = 0.0
@@ -307,8 +306,8 @@ def _commands_agree(policy: pathlib.Path, h5: pathlib.Path, isa: str, cases: int
                 _, c, h, w = spec.shape
                 y, x = np.mgrid[0:h, 0:w]
                 picture = 128 + 80 * np.sin(x / rng.uniform(3, 12) + rng.uniform(0, 6)) * np.cos(y / rng.uniform(3, 12))
-                picture = np.clip(picture + rng.normal(0, 20, (h, w)), 0, 255).round()
-                values = (picture * scale).astype(np.float32).reshape(1, c, h, w)
+                picture = np.clip(picture + rng.normal(0, 20, (h, w)), 0, 255).round().astype(np.uint8)
+                values = contract.network_input(picture, standardise, scale).reshape(1, c, h, w)
                 feeds[spec.name] = values
                 flat.append(values.transpose(0, 2, 3, 1).reshape(-1))
             expected = session.run(None, feeds)[0].reshape(-1)
@@ -321,8 +320,6 @@ def _commands_agree(policy: pathlib.Path, h5: pathlib.Path, isa: str, cases: int
 
 
 def compare(args) -> dict:
-    from . import manifest as policy_manifest
-
     host = (ROOT / "models/policy/HOST_MODEL").read_text().strip()
     robot = (ROOT / "models/policy/ROBOT_MODEL").read_text().strip()
     robot_float = robot.removesuffix("-int8")
@@ -362,7 +359,6 @@ def compare(args) -> dict:
                              "--isa", isa, "--no-peak"])
                     row["engines"].append(entry)
                 row["int8_policy"] = int8
-            policy_manifest.load(policy / "policy.toml")  # a manifest that loads: the row is a real policy
             rows.append(row)
     return {
         "compiled_nn": "compiled-nn-bindings 0.12.0 (B-Human CompiledNN, Keras HDF5 front end)",

@@ -122,12 +122,18 @@ def _tick(directory: Path, instructions: int, build: str = "v5") -> None:
     (directory / f"{build}_tick.json").write_text(json.dumps({"build": build, "instructions": instructions, "networks_sha256": networks}))
 
 
-def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_the_quality(tmp_path):
-    models = tmp_path / "policy"
+def _shipped_and_narrow(models: Path) -> tuple[Path, Path]:
+    """The shipped float model (44 of 50 selection goals) and a narrower float model beside it."""
     shipped, narrow = models / "best", models / "narrow"
     _policy(shipped, 0.100)
     _selection(shipped / "select.json", 44)
     _policy(narrow, 0.120)
+    return shipped, narrow
+
+
+def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_the_quality(tmp_path):
+    models = tmp_path / "policy"
+    shipped, narrow = _shipped_and_narrow(models)
     for name, error, goals, instructions in (("best-int8", 0.105, 41, 3_081_839), ("narrow-int8", 0.125, 42, 1_647_536)):
         _policy(models / name, error, [hashlib.sha256(name.removesuffix("-int8").encode()).hexdigest()])
         _selection(tmp_path / "selection" / f"{name}.json", goals)
@@ -215,10 +221,7 @@ def _profile(models: Path, name: str, build: str, cycles: int, ghz: float, p10: 
 
 def test_the_pipeline_models_slow_end_judges_the_tick_where_the_networks_were_profiled(tmp_path):
     models = tmp_path / "policy"
-    shipped, narrow = models / "best", models / "narrow"
-    _policy(shipped, 0.100)
-    _selection(shipped / "select.json", 44)
-    _policy(narrow, 0.120)
+    shipped, _ = _shipped_and_narrow(models)
     _policy(models / "narrow-int8", 0.125, [hashlib.sha256(b"narrow").hexdigest()])
     _selection(tmp_path / "selection" / "narrow-int8.json", 42)
     # Its instruction counts fit both flat budgets.
