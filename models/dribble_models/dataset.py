@@ -35,6 +35,9 @@ class Episode:
     robot_pose: np.ndarray | None = None  # f32 [T, 3]
     ball: np.ndarray | None = None  # f32 [T, 2]
     time_s: np.ndarray | None = None  # f64 [T]
+    # The conditions it was recorded under as `dribble record` names them ("clean",
+    # "noise:3,robots:2"); None where dataset.json predates conditions.
+    conditions: str | None = None
 
     def __len__(self) -> int:
         return len(self.phase)
@@ -43,7 +46,7 @@ class Episode:
         """Rows start..end (exclusive) as an episode of the same seed."""
         part = slice(start, end)
         optional = (None if a is None else a[part] for a in (self.robot_pose, self.ball, self.time_s))
-        return Episode(self.seed, self.top[part], self.bottom[part], self.command[part], self.phase[part], *optional)
+        return Episode(self.seed, self.top[part], self.bottom[part], self.command[part], self.phase[part], *optional, conditions=self.conditions)
 
 
 @dataclass
@@ -130,6 +133,7 @@ def load(directory: Path, require_seeds: list[int] | None = None) -> Dataset:
                 robot_pose=arrays["robot_pose"] if "robot_pose" in arrays.files else None,
                 ball=arrays["ball"] if "ball" in arrays.files else None,
                 time_s=arrays["time_s"] if "time_s" in arrays.files else None,
+                conditions=entry.get("conditions"),
             )
         rows = len(episode)
         shapes = (episode.top.shape, episode.bottom.shape, episode.command.shape)

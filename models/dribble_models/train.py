@@ -182,6 +182,17 @@ class CameraAugment:
     vignetting: float = 0.5  # corner loss uniform in [0, v]
     noise: float = 0.04  # standard deviation uniform in [0, n], network units
     blur_share: float = 0.3
+    effect_chance: float = 0.5  # of each effect on an augmented row
+
+    #: `--camera-augment-strength`: the ranges above, and ranges past the simulator's
+    #: severity 5 for contrast, exposure and noise, each effect on more of the rows.
+    STRENGTHS = ("standard", "strong")
+
+    @classmethod
+    def of_strength(cls, share: float, strength: str) -> "CameraAugment":
+        if strength == "strong":
+            return cls(share=share, exposure_ev=1.6, contrast_low=0.25, vignetting=0.65, noise=0.06, blur_share=0.5, effect_chance=0.7)
+        return cls(share=share)
 
     def __call__(self, top: torch.Tensor, bottom: torch.Tensor, generator: torch.Generator):
         n = top.shape[0]
@@ -190,7 +201,7 @@ class CameraAugment:
             return low + (high - low) * torch.rand(n, 1, 1, 1, generator=generator)
 
         chosen = (torch.rand(n, 1, 1, 1, generator=generator) < self.share).float()
-        on = lambda: (torch.rand(n, 1, 1, 1, generator=generator) < 0.5).float() * chosen  # noqa: E731
+        on = lambda: (torch.rand(n, 1, 1, 1, generator=generator) < self.effect_chance).float() * chosen  # noqa: E731
         ev = draw(-self.exposure_ev, self.exposure_ev) * on()
         contrast = 1 + (draw(self.contrast_low, 1.0) - 1) * on()
         vignetting = draw(0.0, self.vignetting) * on()
@@ -392,6 +403,18 @@ def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str 
     return out
 
 
+#: Conditions that change the scene around the field but neither the camera nor the light.
+SCENE_ONLY_CONDITIONS = {"clean", "robots"}
+
+
+def camera_clean(episode: Episode) -> bool:
+    """Whether `episode` was recorded with nothing that changes how the camera sees (no
+    camera, light or venue condition): where a policy trained on clean renders sees as it
+    was trained to, so `--distill-camera-clean` takes its commands there."""
+    names = {part.split(":")[0] for part in (episode.conditions or "clean").split(",")}
+    return names <= SCENE_ONLY_CONDITIONS
+
+
 def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
     """A seeded random `fraction` of `rows` (indices), in batches."""
     count = max(1, int(round(len(rows) * fraction)))
@@ -477,12 +500,17 @@ class Training:
             self.train_episodes = self.train_episodes + episodes
         torch.manual_seed(args.seed)
         self.augment = Augment() if args.augment else None
-        self.camera_augment = CameraAugment(share=args.camera_augment) if args.camera_augment > 0 else None
+        self.camera_augment = CameraAugment.of_strength(args.camera_augment, args.camera_augment_strength) if args.camera_augment > 0 else None
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
         if args.distill_from is not None:
             if self.kind != "cnn" or args.modes != 1:
                 raise DatasetError("--distill-from trains a one-output CNN (--kind cnn, --modes 1)")
-            self.rows.command = distilled_commands(args.distill_from, self.rows, self.device)
+            distilled = distilled_commands(args.distill_from, self.rows, self.device)
+            if args.distill_camera_clean:
+                clean = np.concatenate([np.full(len(e), camera_clean(e)) for e in self.train_episodes])
+                print(f"distilled labels on {int(clean.sum())} of {len(clean)} rows (camera-clean episodes)", file=sys.stderr)
+                distilled = np.where(clean[:, None], distilled, self.rows.command)
+            self.rows.command = distilled
         if self.kind == "cnn":
             self.model = CNN(args.filters) if args.modes == 1 else ModalCNN(args.modes, args.filters)
         elif self.kind == "rcnn":
@@ -571,12 +599,14 @@ class Training:
             # Only where it differs from the paper's one output, so that older checkpoints resume.
             **({"modes": a.modes} if a.modes != 1 else {}),
             **({"camera_augment": a.camera_augment} if a.camera_augment > 0 else {}),
+            **({"camera_augment_strength": a.camera_augment_strength} if a.camera_augment_strength != "standard" else {}),
             **({"standardise_input": "folded start" if self.folded_start else True} if a.standardise_input else {}),
             **({"filters": a.filters.text()} if a.filters != PAPER_FILTERS else {}),
             **({"added_datasets": [d.content_hash for d in self.added]} if self.added else {}),
             **({"init_from": start_sha256(a.init_from)} if a.init_from is not None else {}),
             **({"prune_from": start_sha256(a.prune_from)} if a.prune_from is not None else {}),
             **({"distill_from": start_sha256(a.distill_from)} if a.distill_from is not None else {}),
+            **({"distill_camera_clean": True} if a.distill_camera_clean else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
 
@@ -847,7 +877,8 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
         parts.append(f"K {args.clusters} (k-means on {args.kmeans_rows} sampled rows)")
     parts.append("augmented" if args.augment else "no augmentation")
     if args.camera_augment > 0:
-        parts.append(f"camera conditions augmented on {args.camera_augment:.0%} of the rows (CameraAugment: exposure, contrast, vignetting, blur, noise)")
+        strength = "" if args.camera_augment_strength == "standard" else f", {args.camera_augment_strength} ranges"
+        parts.append(f"camera conditions augmented on {args.camera_augment:.0%} of the rows (CameraAugment: exposure, contrast, vignetting, blur, noise{strength})")
     if args.standardise_input:
         parts.append("each thumbnail standardised on its own before the network ([normalisation] standardise)")
         if args.init_from is not None:
@@ -863,7 +894,8 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
     if args.prune_from is not None:
         parts.append(f"started from {args.prune_from} (sha256 {start_sha256(args.prune_from)[:12]}) pruned to these filters, largest L1 norms kept")
     if args.distill_from is not None:
-        parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) for each training row, validated on the teacher's")
+        rows = "on the rows of camera-clean episodes (clean or robots only), the teacher's labels elsewhere" if args.distill_camera_clean else "for each training row"
+        parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) {rows}, validated on the teacher's")
     if args.features_from is not None:
         how = "kept fixed" if args.freeze_features else "trained on"
         parts.append(f"convolutions from the CNN {args.features_from} (sha256 {start_sha256(args.features_from)[:12]}), {how}")
@@ -886,6 +918,7 @@ class TrainingConfig:
     init_from: Path | None = None
     prune_from: Path | None = None
     distill_from: Path | None = None
+    distill_camera_clean: bool = False
     test_dataset: Path | None = None
     epochs: int = 0
     epoch_fraction: float = 1.0
@@ -903,6 +936,7 @@ class TrainingConfig:
     modes: int = 1
     augment: bool = False
     camera_augment: float = 0.0
+    camera_augment_strength: str = "standard"
     standardise_input: bool = False
     balance_phases: bool = False
     threads: int = 1
@@ -931,6 +965,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote), or from a shipped one-network float model (its directory or policy.toml: dribble_models.shipped_weights), instead of random ones")
     parser.add_argument("--prune-from", type=Path, metavar="MODEL", help="CNN: start from this wider shipped one-network float CNN, each convolution keeping its --filters filters of largest L1 norm (and the next layers the matching channels and columns) instead of random weights")
     parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation stays on the teacher's labels)")
+    parser.add_argument("--distill-camera-clean", action="store_true", help="with --distill-from: its commands only on the rows of episodes recorded with no camera, light or venue condition (clean, robots), where a model trained on clean renders sees as it learned to; the teacher's labels on the rest (a robust student of a clean-trained policy, with --camera-augment)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")
@@ -948,6 +983,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--modes", type=int, default=1, help="CNN: command hypotheses with a learned choice among them (beyond the paper; 1 is the paper's CNN)")
     parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
     parser.add_argument("--camera-augment", type=float, default=0.0, metavar="SHARE", help="apply what the simulator's camera conditions do (exposure, contrast, vignetting, blur, noise) to this share of the training rows (0: none; CameraAugment)")
+    parser.add_argument("--camera-augment-strength", choices=CameraAugment.STRENGTHS, default="standard", help="the ranges of --camera-augment: standard (up to 1.2 EV, contrast 0.4, noise 0.04) or strong (up to 1.6 EV, contrast 0.25, noise 0.06, past the simulator's severity 5, each effect on 70%% of the augmented rows)")
     parser.add_argument("--standardise-input", action="store_true", help="the controller standardises each thumbnail on its own before the network (mean 0, spread 1, at least 4 levels: [normalisation] standardise in policy.toml), so exposure, gain and contrast change nothing the network sees (beyond the paper)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")
@@ -964,6 +1000,8 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         args.epochs = DEFAULT_EPOCHS[args.kind]
     if not 0.0 < args.epoch_fraction <= 1.0:
         parser.error("--epoch-fraction must be in (0, 1]")
+    if args.distill_camera_clean and args.distill_from is None:
+        parser.error("--distill-camera-clean says where --distill-from's commands are taken: give --distill-from")
     if args.cut_stalls is not None and not args.cut_stalls > 0:
         parser.error("--cut-stalls is a positive number of seconds")
     if args.modes < 1 or (args.modes > 1 and args.kind != "cnn"):

@@ -314,6 +314,34 @@ def test_a_distilled_cnn_learns_the_shipped_networks_commands_not_the_teachers(t
     assert main(["--kind", "hcnn", *common[2:], "--out", str(tmp_path / "z"), "--checkpoint-dir", str(tmp_path / "c-z"), "--distill-from", str(big)]) == 2
 
 
+def test_distilling_where_the_camera_is_clean_keeps_the_teachers_labels_elsewhere(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3], 6, rng)
+    index = json.loads((train / "dataset.json").read_text())
+    for entry, conditions in zip(index["episodes"], ["robots:2", "contrast:3,robots:1", "clean"]):
+        entry["conditions"] = conditions
+    (train / "dataset.json").write_text(json.dumps(index))
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    big = tmp_path / "big"
+    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    flags = ["--distill-from", str(big), "--distill-camera-clean"]
+    trainer = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))
+    # Seed 1 (robots only) takes the model's commands; seed 2 (contrast) keeps the teacher's;
+    # seed 3 is held out.
+    assert [e.conditions for e in trainer.train_episodes] == ["robots:2", "contrast:3,robots:1"]
+    teacher = Rows.of(trainer.train_episodes).command
+    net = CNN(PAPER_FILTERS)
+    load_shipped_weights(net, big, "cnn")
+    with torch.no_grad():
+        first = trainer.train_episodes[0]
+        expected = sent_commands(net.eval()(to_input(first.top), to_input(first.bottom)).numpy())
+    np.testing.assert_allclose(trainer.rows.command[:6], expected, atol=1e-6)
+    np.testing.assert_array_equal(trainer.rows.command[6:], teacher[6:])
+    assert "on the rows of camera-clean episodes" in notes_of(parse_args([*common, "--out", "o", *flags]))
+    # Without a model to take commands from, the flag means nothing: refused.
+    with pytest.raises(SystemExit):
+        parse_args([*common, "--out", "o", "--distill-camera-clean"])
+
+
 def test_a_pruned_start_takes_the_wide_models_strongest_filters(tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
     common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
@@ -360,9 +388,24 @@ def test_camera_augmentation_changes_a_share_of_the_rows_within_range_and_follow
     assert torch.allclose(untouched[0], top, atol=1e-5) and torch.allclose(untouched[1], bottom, atol=1e-5)
 
 
+def test_strong_camera_augmentation_reaches_lower_contrast_than_the_standard():
+    generator = torch.Generator().manual_seed(3)
+    top, bottom = torch.rand(256, 1, 120, 160, generator=generator), torch.rand(256, 1, 60, 80, generator=generator)
+
+    def lowest_spread(augment: CameraAugment) -> float:
+        out, _ = augment(top, bottom, torch.Generator().manual_seed(5))
+        return float((out.flatten(1).std(1) / top.flatten(1).std(1)).min())
+
+    standard, strong = CameraAugment.of_strength(1.0, "standard"), CameraAugment.of_strength(1.0, "strong")
+    assert strong.contrast_low < standard.contrast_low and strong.effect_chance > standard.effect_chance
+    assert lowest_spread(strong) < lowest_spread(standard)
+
+
 def test_camera_augmentation_is_named_in_the_notes():
     args = parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "0.5"])
     assert "camera conditions augmented on 50% of the rows" in notes_of(args, torch.device("cpu"))
+    strong = parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "0.5", "--camera-augment-strength", "strong"])
+    assert "noise, strong ranges)" in notes_of(strong)
     with pytest.raises(SystemExit):
         parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "2"])
 

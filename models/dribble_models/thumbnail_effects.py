@@ -1,0 +1,155 @@
+"""How much a camera effect moves a policy's commands, offline: the command error of CNN
+policies on held-out dataset rows whose thumbnails were changed the way a camera condition
+changes them (issue 48).
+
+    python -m dribble_models.thumbnail_effects --dataset ~/.cache/dribble/data/randomized-detector \\
+        --seeds 55,56,57 models/policy/dagger-observable-more models/policy/cnn-conditions
+
+A closed loop under a rendered condition costs minutes per episode on two cores; this costs
+seconds per policy, so it ranks training recipes before closed loops on the selection seeds
+choose among them. It is a proxy and says so: the effects here are painted on the u8
+thumbnails (the simulator renders them at the cameras' resolution before YUYV packing), and
+the error is the teacher's label against the policy's command on the teacher's own states,
+not what happens when the policy drives. Only point effects are close to the rendered ones
+(contrast and exposure act on each pixel; sensor noise averaged over a thumbnail pixel's 4x4
+camera pixels has a quarter of its spread; the lens and motion blur are approximated by a 3x3
+box at the thumbnail's scale). Rows must come from training or validation seeds, never from
+selection, test or fresh seeds (`seed_ranges.refuse_reserved`): the numbers here inform
+choices.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from . import contract, dataset, seed_ranges
+from .shipped_weights import network_of, standardised_manifest
+from .train import row_errors
+
+GAMMA = 2.2
+
+
+@dataclass(frozen=True)
+class ThumbnailEffect:
+    """One named change of a thumbnail's display values in [0, 1]."""
+
+    name: str
+    exposure_ev: float = 0.0
+    contrast: float = 1.0
+    noise: float = 0.0  # standard deviation at the thumbnail's scale, display units
+    blur: bool = False
+    vignetting: float = 0.0
+
+    def apply(self, thumbnails: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """u8 [N, H, W] -> u8 [N, H, W]: in the order the simulator applies them (exposure and
+        vignetting on linear light, then the lens, contrast around mid-grey, noise)."""
+        display = thumbnails.astype(np.float32) / 255.0
+        n, h, w = display.shape
+        if self.exposure_ev or self.vignetting:
+            y = np.linspace(-1, 1, h, dtype=np.float32)[:, None]
+            x = np.linspace(-1, 1, w, dtype=np.float32)[None, :]
+            falloff = 1 - self.vignetting * (x * x + y * y) / 2
+            linear = display**GAMMA * falloff * np.float32(2.0**self.exposure_ev)
+            display = np.clip(linear, 0, 1) ** (1 / GAMMA)
+        if self.blur:
+            padded = np.pad(display, ((0, 0), (1, 1), (1, 1)), mode="edge")
+            display = sum(padded[:, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)) / 9
+        display = 0.5 + (display - 0.5) * self.contrast
+        if self.noise:
+            display = display + rng.normal(0.0, self.noise, display.shape).astype(np.float32)
+        return np.clip(np.rint(display * 255.0), 0, 255).astype(np.uint8)
+
+
+#: Severity 3 of the point and lens conditions as the simulator draws them
+#: (sim-harness/src/conditions/camera.rs), at the thumbnail's scale.
+SEVERITY_3 = (
+    ThumbnailEffect("clean"),
+    ThumbnailEffect("exposure:3 (-0.7 EV)", exposure_ev=-0.7),
+    ThumbnailEffect("exposure:3 (+0.7 EV)", exposure_ev=0.7),
+    ThumbnailEffect("contrast:3 (0.5)", contrast=0.5),
+    ThumbnailEffect("contrast:5 (0.3)", contrast=0.3),
+    ThumbnailEffect("noise:3 (20/255 raw)", noise=20.0 / 255.0 / 4.0),
+    ThumbnailEffect("noise:5 (45/255 raw)", noise=45.0 / 255.0 / 4.0),
+    ThumbnailEffect("blur (3x3)", blur=True),
+    ThumbnailEffect("lens:3 (vignetting 0.35, blur)", vignetting=0.35, blur=True),
+)
+
+
+def commands(network: Path, standardise: bool, top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
+    """The network's raw outputs [N, 3] for u8 thumbnails, one row at a time as the robot runs it."""
+    session = ort.InferenceSession(str(network), providers=["CPUExecutionProvider"])
+    out = np.empty((len(top), 3), np.float32)
+    for t in range(len(top)):
+        feed = {
+            contract.TOP_INPUT: contract.network_input(top[t][None, None], standardise),
+            contract.BOTTOM_INPUT: contract.network_input(bottom[t][None, None], standardise),
+        }
+        out[t] = session.run([contract.COMMAND_OUTPUT], feed)[0][0]
+    return out
+
+
+def errors_under_effects(policies: list[Path], episodes: list[dataset.Episode], effects=SEVERITY_3, seed: int = 0) -> dict:
+    """{policy name: {effect name: mean command error}} on every row of `episodes`."""
+    top = np.concatenate([e.top for e in episodes])
+    bottom = np.concatenate([e.bottom for e in episodes])
+    expert = np.concatenate([e.command for e in episodes])
+    changed = {}
+    for index, effect in enumerate(effects):
+        rng = np.random.default_rng([seed, index])
+        changed[effect.name] = (effect.apply(top, rng), effect.apply(bottom, rng))
+    table = {}
+    for policy in policies:
+        network = network_of(policy, "cnn")
+        standardise = standardised_manifest(policy)
+        table[policy.name] = {
+            name: float(row_errors(commands(network, standardise, t, b), expert).mean()) for name, (t, b) in changed.items()
+        }
+    return table
+
+
+def markdown(table: dict, rows: int, seeds: list[int]) -> str:
+    effects = list(next(iter(table.values())))
+    lines = [
+        f"Command error on {rows} rows of seeds {', '.join(map(str, seeds))} (thumbnails changed offline):",
+        "",
+        "| policy | " + " | ".join(effects) + " |",
+        "|---|" + "---:|" * len(effects),
+    ]
+    for policy, errors in table.items():
+        lines.append(f"| {policy} | " + " | ".join(f"{errors[e]:.3f}" for e in effects) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("policies", nargs="+", type=Path, help="shipped one-network CNN model directories")
+    parser.add_argument("--dataset", type=Path, required=True, help="a `dribble record` directory")
+    parser.add_argument("--seeds", required=True, help="comma-separated episode seeds (training or validation seeds only)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the noise draws")
+    parser.add_argument("--json", type=Path, help="also write the table here")
+    args = parser.parse_args(argv)
+    seeds = [int(s) for s in args.seeds.split(",") if s]
+    try:
+        seed_ranges.refuse_reserved(seeds, "--seeds", use="offline look (it informs choices)")
+        data = dataset.load(args.dataset, require_seeds=seeds)
+    except (ValueError, dataset.DatasetError) as error:
+        print(f"thumbnail_effects: {error}", file=sys.stderr)
+        return 2
+    episodes = data.subset(seeds)
+    table = errors_under_effects(args.policies, episodes, seed=args.seed)
+    rows = sum(len(e) for e in episodes)
+    print(markdown(table, rows, seeds))
+    if args.json:
+        args.json.write_text(json.dumps({"dataset": data.content_hash, "seeds": seeds, "rows": rows, "errors": table}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
