@@ -12,14 +12,20 @@
   `{"pixels": {"top": uint8 (120, 160, 3), "bottom": uint8 (60, 80, 3)}}`, the thumbnails'
   luma in three equal channels, as the exported datasets store them
   (`dribble_models.lerobot_format`), so `observation.images.top` and `.bottom` reach a policy
-  as they reach one trained on those datasets. The action is the normalised speed command
+  as they reach one trained on those datasets, and `agent_pos` (LeRobot's
+  `observation.state`) as the exports' two zeros: the robot has no state beyond its images.
+  The action is the normalised speed command
   `[forward, left, turn]`. Success is dribble's own outcome: `info["is_success"]` is true
   exactly when the episode ends in a goal; the 90 s limit is the environment's own.
 - **Policy.** `DribbleOnnxPolicy` is a LeRobot `PreTrainedPolicy` that runs a shipped
   float policy's ONNX network under onnxruntime: it turns LeRobot's float images back into
   the u8 thumbnails (exactly: they were u8 / 255), makes the network's input as the
   controller does (`contract.network_input`, `[normalisation]` of the manifest), and returns
-  the command. dribble's controller then clamps it, as in `dribble eval`.
+  the command. dribble's controller then clamps it, as in `dribble eval`. A policy LeRobot
+  trained (a `pretrained_model` directory: `config.json`, `model.safetensors` and its
+  processors, as `lerobot-train` saves one, e.g. `scripts/lerobot train-act`) is loaded with
+  LeRobot's own classes and plays through its own saved pre- and post-processors
+  (normalisation of images, state and action), on the CPU.
 
 LeRobot picks the seeds: `start_seed`, then one more per episode. The summary written has
 one row per seed with LeRobot's success and dribble's outcome, the goals with their Wilson
@@ -57,6 +63,9 @@ GYM_ID = "gym_dribble/NaoDribble-v0"
 MAX_STEPS = 3000
 TOP = "observation.images.top"
 BOTTOM = "observation.images.bottom"
+STATE = "observation.state"
+#: The exports' `observation.state`: two zeros (dribble_models.lerobot_format says why).
+STATE_SIZE = 2
 
 
 class LeRobotObservations(gym.ObservationWrapper):
@@ -72,12 +81,16 @@ class LeRobotObservations(gym.ObservationWrapper):
                         "top": gym.spaces.Box(0, 255, (*contract.TOP_SHAPE, 3), np.uint8),
                         "bottom": gym.spaces.Box(0, 255, (*contract.BOTTOM_SHAPE, 3), np.uint8),
                     }
-                )
+                ),
+                "agent_pos": gym.spaces.Box(0.0, 0.0, (STATE_SIZE,), np.float32),
             }
         )
 
     def observation(self, observation: dict) -> dict:
-        return {"pixels": {name: np.repeat(np.asarray(observation[name])[:, :, None], 3, axis=2) for name in ("top", "bottom")}}
+        return {
+            "pixels": {name: np.repeat(np.asarray(observation[name])[:, :, None], 3, axis=2) for name in ("top", "bottom")},
+            "agent_pos": np.zeros(STATE_SIZE, np.float32),
+        }
 
     def step(self, action):
         observation, reward, terminated, truncated, info = super().step(action)
@@ -115,10 +128,11 @@ class DribbleEnv(EnvConfig):
             "action": PolicyFeature(type=FeatureType.ACTION, shape=(3,)),
             "pixels/top": PolicyFeature(type=FeatureType.VISUAL, shape=(*contract.TOP_SHAPE, 3)),
             "pixels/bottom": PolicyFeature(type=FeatureType.VISUAL, shape=(*contract.BOTTOM_SHAPE, 3)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(STATE_SIZE,)),
         }
     )
     features_map: dict[str, str] = field(
-        default_factory=lambda: {"action": "action", "pixels/top": TOP, "pixels/bottom": BOTTOM}
+        default_factory=lambda: {"action": "action", "pixels/top": TOP, "pixels/bottom": BOTTOM, "agent_pos": STATE}
     )
 
     @property
@@ -222,26 +236,52 @@ class OutcomeLog(gym.Wrapper):
         return observation, reward, terminated, truncated, info
 
 
+def is_lerobot_checkpoint(model: Path) -> bool:
+    """Whether `model` is a policy LeRobot saved (`config.json` and `model.safetensors`)."""
+    return (model / "config.json").is_file() and (model / "model.safetensors").is_file()
+
+
+def policy_and_processors(model: Path):
+    """The policy at `model` with the processors it plays through: a shipped dribble model's
+    ONNX network with none (its normalisation is the manifest's, inside the policy), or a
+    LeRobot checkpoint with the pre- and post-processors saved beside it."""
+    from lerobot.processor import PolicyProcessorPipeline
+    from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
+
+    if not is_lerobot_checkpoint(model):
+        identity = PolicyProcessorPipeline(steps=[])
+        actions = PolicyProcessorPipeline(steps=[], to_transition=policy_action_to_transition, to_output=transition_to_policy_action)
+        return DribbleOnnxPolicy(DribbleOnnxConfig(model=str(model))), identity, actions, "onnxruntime"
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    config = PreTrainedConfig.from_pretrained(model)
+    config.device = "cpu"
+    policy = get_policy_class(config.type).from_pretrained(model, config=config)
+    policy.eval()
+    preprocessor, postprocessor = make_pre_post_processors(
+        config, pretrained_path=str(model), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+    )
+    return policy, preprocessor, postprocessor, f"LeRobot {config.type}"
+
+
 def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 90.0) -> dict:
     """LeRobot's `make_env` and `eval_policy` on `seeds`, one episode at a time."""
     from lerobot.envs.factory import make_env
     from lerobot.processor import PolicyProcessorPipeline
-    from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
     from lerobot.scripts.lerobot_eval import eval_policy
 
     register()
+    policy, preprocessor, postprocessor, runner = policy_and_processors(model)
     config = DribbleEnv(conditions=conditions, time_limit_s=time_limit_s)
     environments = make_env(config, n_envs=1)
     vector_env = environments["dribble"][0]
     outcomes = vector_env.envs[0] = OutcomeLog(vector_env.envs[0])
-    policy = DribbleOnnxPolicy(DribbleOnnxConfig(model=str(model)))
-    # No processing on either side: the network's own normalisation is inside the policy.
     identity = PolicyProcessorPipeline(steps=[])
-    actions = PolicyProcessorPipeline(steps=[], to_transition=policy_action_to_transition, to_output=transition_to_policy_action)
     started = time.monotonic()
-    info = eval_policy(
-        vector_env, policy, identity, identity, identity, actions, n_episodes=len(seeds), start_seed=seeds.start
-    )
+    with torch.no_grad():
+        info = eval_policy(
+            vector_env, policy, identity, identity, preprocessor, postprocessor, n_episodes=len(seeds), start_seed=seeds.start
+        )
     vector_env.close()
     episodes = [
         {**row, "lerobot_success": bool(lerobot["success"])}
@@ -250,7 +290,7 @@ def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 9
     goals = sum(e["outcome"] == "goal" for e in episodes)
     low, high = wilson(goals, len(episodes))
     return {
-        "path": "lerobot eval_policy (LeRobot 0.4.4) over gym_dribble/NaoDribble-v0, onnxruntime",
+        "path": f"lerobot eval_policy (LeRobot 0.4.4) over gym_dribble/NaoDribble-v0, {runner}",
         "policy": str(model),
         "conditions": conditions,
         "time_limit_s": time_limit_s,
@@ -266,7 +306,7 @@ def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 9
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="scripts/lerobot eval", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--policy", type=Path, required=True, help="a shipped float CNN: models/policy/NAME or its policy.toml")
+    parser.add_argument("--policy", type=Path, required=True, help="a shipped float CNN (models/policy/NAME or its policy.toml), or a policy LeRobot trained (a checkpoint's pretrained_model directory)")
     parser.add_argument("--seeds", type=seed_range, required=True, metavar="A..B", help="the episodes' seeds, A to B - 1")
     parser.add_argument("--condition", default="clean", help="as `dribble eval --condition` takes it")
     parser.add_argument("--time-limit", type=float, default=90.0, help="simulated seconds per episode (the paper's 90)")

@@ -93,3 +93,51 @@ def test_lerobots_eval_policy_plays_a_dribble_episode_with_a_shipped_cnn(tmp_pat
     assert episode["seed"] == 10000 and episode["outcome"] in ("goal", "time_limit", "ball_out")
     assert episode["lerobot_success"] == (episode["outcome"] == "goal") == episode["is_success"]
     assert summary["episodes"] == 1 and summary["goals"] == int(episode["outcome"] == "goal")
+
+
+TINY_ACT = """
+import sys
+from pathlib import Path
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.policies.act.configuration_act import ACTConfig
+from lerobot.policies.act.modeling_act import ACTPolicy
+from lerobot.policies.factory import make_pre_post_processors
+from dribble_models.lerobot_eval import BOTTOM, STATE, TOP
+
+torch.manual_seed(0)
+config = ACTConfig(device="cpu", pretrained_backbone_weights=None, dim_model=32, dim_feedforward=64, n_heads=2,
+                   n_encoder_layers=1, n_decoder_layers=1, use_vae=False, chunk_size=2, n_action_steps=1)
+config.input_features = {TOP: PolicyFeature(FeatureType.VISUAL, (3, 120, 160)),
+                         BOTTOM: PolicyFeature(FeatureType.VISUAL, (3, 60, 80)),
+                         STATE: PolicyFeature(FeatureType.STATE, (2,))}
+config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (3,))}
+image = {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.2)}
+stats = {TOP: image, BOTTOM: image, STATE: {"mean": torch.zeros(2), "std": torch.ones(2)},
+         "action": {"mean": torch.zeros(3), "std": torch.full((3,), 0.5)}}
+preprocessor, postprocessor = make_pre_post_processors(config, dataset_stats=stats)
+out = Path(sys.argv[1])
+for part in (ACTPolicy(config), preprocessor, postprocessor):
+    part.save_pretrained(out)
+"""
+
+
+@pytest.mark.skipif(not (LEROBOT_VENV / "bin" / "python").exists(), reason="no LeRobot environment (scripts/lerobot makes one)")
+def test_lerobots_eval_policy_plays_a_policy_lerobot_saved(tmp_path):
+    """A LeRobot ACT checkpoint (tiny, random weights, saved as `lerobot-train` saves one)
+    plays a short episode through its own processors, with the zeros state the exports hold."""
+    checkpoint = tmp_path / "pretrained_model"
+    environment = {**os.environ, "PYTHONPATH": str(REPOSITORY / "models")}
+    made = subprocess.run([str(LEROBOT_VENV / "bin" / "python"), "-c", TINY_ACT, str(checkpoint)], capture_output=True, text=True, env=environment)
+    assert made.returncode == 0, made.stderr[-2000:]
+    out = tmp_path / "eval.json"
+    played = subprocess.run(
+        [str(REPOSITORY / "scripts" / "lerobot"), "eval", "--policy", str(checkpoint),
+         "--seeds", "10000..10001", "--time-limit", "1", "--out", str(out)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert played.returncode == 0, played.stderr[-2000:]
+    summary = json.loads(out.read_text())
+    assert summary["path"].endswith("LeRobot act")
+    (episode,) = summary["per_episode"]
+    assert episode["seed"] == 10000 and episode["duration_s"] <= 1.0 + 1e-6
