@@ -30,7 +30,7 @@ import numpy as np
 import onnxruntime as ort
 
 from . import contract, dataset, seed_ranges
-from .shipped_weights import network_of, standardised_manifest
+from .shipped_weights import ShippedWeightsError, network_of, standardised_manifest
 from .train import row_errors
 
 GAMMA = 2.2
@@ -143,7 +143,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thumbnail_effects: {error}", file=sys.stderr)
         return 2
     episodes = data.subset(seeds)
-    table = errors_under_effects(args.policies, episodes, seed=args.seed)
+    try:
+        table = errors_under_effects(args.policies, episodes, seed=args.seed)
+    except ShippedWeightsError as error:
+        print(f"thumbnail_effects: {error}", file=sys.stderr)
+        return 2
     rows = sum(len(e) for e in episodes)
     print(markdown(table, rows, seeds))
     if args.json:

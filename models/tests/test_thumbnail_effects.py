@@ -31,3 +31,10 @@ def test_the_seeds_kept_for_choosing_and_reporting_are_refused(tmp_path, seed, c
     data = write_dataset(tmp_path / "d", [1, seed], 2, np.random.default_rng(0))
     assert main(["--dataset", str(data), "--seeds", f"1,{seed}", str(tmp_path / "model")]) == 2
     assert "kept for choosing and reporting" in capsys.readouterr().err
+
+
+def test_a_directory_that_is_no_shipped_cnn_is_named(tmp_path, capsys):
+    data = write_dataset(tmp_path / "d", [1], 2, np.random.default_rng(0))
+    (tmp_path / "model").mkdir()
+    assert main(["--dataset", str(data), "--seeds", "1", str(tmp_path / "model")]) == 2
+    assert "thumbnail_effects:" in capsys.readouterr().err
