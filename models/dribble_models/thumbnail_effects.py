@@ -27,10 +27,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import onnxruntime as ort
 
-from . import contract, dataset, seed_ranges
-from .shipped_weights import ShippedWeightsError, network_of, standardised_manifest
+from . import dataset, seed_ranges
+from .gym_equivalence import OnnxPolicy
 from .train import row_errors
 
 GAMMA = 2.2
@@ -82,19 +81,6 @@ SEVERITY_3 = (
 )
 
 
-def commands(network: Path, standardise: bool, top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
-    """The network's raw outputs [N, 3] for u8 thumbnails, one row at a time as the robot runs it."""
-    session = ort.InferenceSession(str(network), providers=["CPUExecutionProvider"])
-    out = np.empty((len(top), 3), np.float32)
-    for t in range(len(top)):
-        feed = {
-            contract.TOP_INPUT: contract.network_input(top[t][None, None], standardise),
-            contract.BOTTOM_INPUT: contract.network_input(bottom[t][None, None], standardise),
-        }
-        out[t] = session.run([contract.COMMAND_OUTPUT], feed)[0][0]
-    return out
-
-
 def errors_under_effects(policies: list[Path], episodes: list[dataset.Episode], effects=SEVERITY_3, seed: int = 0) -> dict:
     """{policy name: {effect name: mean command error}} on every row of `episodes`."""
     top = np.concatenate([e.top for e in episodes])
@@ -106,10 +92,11 @@ def errors_under_effects(policies: list[Path], episodes: list[dataset.Episode], 
         changed[effect.name] = (effect.apply(top, rng), effect.apply(bottom, rng))
     table = {}
     for policy in policies:
-        network = network_of(policy, "cnn")
-        standardise = standardised_manifest(policy)
+        # The Gymnasium comparison's onnxruntime runner: one row at a time, as the robot runs it.
+        network = OnnxPolicy(policy / "policy.toml")
         table[policy.name] = {
-            name: float(row_errors(commands(network, standardise, t, b), expert).mean()) for name, (t, b) in changed.items()
+            name: float(row_errors(np.array([network({"top": a, "bottom": b}) for a, b in zip(t, bs)]), expert).mean())
+            for name, (t, bs) in changed.items()
         }
     return table
 
@@ -145,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     episodes = data.subset(seeds)
     try:
         table = errors_under_effects(args.policies, episodes, seed=args.seed)
-    except ShippedWeightsError as error:
+    except (OSError, ValueError) as error:
         print(f"thumbnail_effects: {error}", file=sys.stderr)
         return 2
     rows = sum(len(e) for e in episodes)
