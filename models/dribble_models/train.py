@@ -403,8 +403,9 @@ def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str 
     return out
 
 
-#: Conditions that change the scene around the field but neither the camera nor the light.
-SCENE_ONLY_CONDITIONS = {"clean", "robots"}
+#: Conditions under which a camera sees as on a clean render: robots around the field change
+#: the scene but neither the camera, the light nor the venue.
+CAMERA_CLEAN_CONDITIONS = {"clean", "robots"}
 
 
 def camera_clean(episode: Episode) -> bool:
@@ -412,7 +413,7 @@ def camera_clean(episode: Episode) -> bool:
     camera, light or venue condition): where a policy trained on clean renders sees as it
     was trained to, so `--distill-camera-clean` takes its commands there."""
     names = {part.split(":")[0] for part in (episode.conditions or "clean").split(",")}
-    return names <= SCENE_ONLY_CONDITIONS
+    return names <= CAMERA_CLEAN_CONDITIONS
 
 
 def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
