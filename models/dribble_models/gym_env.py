@@ -29,7 +29,7 @@ Harada and Russell 1999, which leaves the best policy unchanged).
 ``info`` holds the ground truth the policy does not see: ``time_s``, ``robot`` (x, y,
 heading), ``ball``, ``target_side``, ``goal_centre``, ``seed``, and the teacher's command
 and phase for that state (``expert_command``, ``expert_phase``; the teacher is
-``expert="paper"``, ``"observable"``, ``"orbit"`` or ``"detector"``, asked exactly where DAgger's labels are). The last
+``expert="paper"``, ``"observable"``, ``"orbit"``, ``"detector"`` or ``"detector-one-way"``, asked exactly where DAgger's labels are). The last
 step's ``info`` adds the ``outcome``, ``duration_s``, ``walked_m``, ``computed_commands``,
 ``first_sighting_s`` and the 10 Hz ``trajectory`` that ``dribble eval --trajectories``
 writes.
@@ -90,8 +90,8 @@ class NaoDribbleEnv(gym.Env):
         binary: str | None = None,
         condition: str = "clean",
     ):
-        if expert not in ("paper", "observable", "orbit", "detector"):
-            raise ValueError(f"expert is 'paper', 'observable', 'orbit' or 'detector', not {expert!r}")
+        if expert not in ("paper", "observable", "orbit", "detector", "detector-one-way"):
+            raise ValueError(f"expert is 'paper', 'observable', 'orbit', 'detector' or 'detector-one-way', not {expert!r}")
         if not (time_limit_s > 0 and np.isfinite(time_limit_s)):
             raise ValueError(f"time_limit_s must be positive and finite, not {time_limit_s}")
         self.observation_space = spaces.Dict(

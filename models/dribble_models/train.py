@@ -68,6 +68,7 @@ from .export import export_policy
 from .gating import fit_centroids
 from .manifest import TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
+from .one_way_detour import OneWayDetour
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of
 from .stalls import CutReport, StallRule, cut_all
 
@@ -502,6 +503,13 @@ class Training:
         torch.manual_seed(args.seed)
         self.augment = Augment() if args.augment else None
         self.camera_augment = CameraAugment.of_strength(args.camera_augment, args.camera_augment_strength) if args.camera_augment > 0 else None
+        detour = np.zeros(0, bool)
+        if args.one_way_detour:
+            # The teacher's two-way detour rows relabelled one way, validation's too; the
+            # relabelled rows keep their label through a distillation below.
+            self.train_episodes, detour = OneWayDetour().relabelled(self.train_episodes)
+            self.validation_episodes, _ = OneWayDetour().relabelled(self.validation_episodes)
+            print(f"one-way detour: {int(detour.sum())} of {len(detour)} training rows relabelled", file=sys.stderr)
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
         if args.distill_from is not None:
             if self.kind != "cnn" or args.modes != 1:
@@ -511,6 +519,8 @@ class Training:
                 clean = np.concatenate([np.full(len(e), camera_clean(e)) for e in self.train_episodes])
                 print(f"distilled labels on {int(clean.sum())} of {len(clean)} rows (camera-clean episodes)", file=sys.stderr)
                 distilled = np.where(clean[:, None], distilled, self.rows.command)
+            if args.one_way_detour:
+                distilled = np.where(detour[:, None], self.rows.command, distilled)
             self.rows.command = distilled
         if self.kind == "cnn":
             self.model = CNN(args.filters) if args.modes == 1 else ModalCNN(args.modes, args.filters)
@@ -608,6 +618,7 @@ class Training:
             **({"prune_from": start_sha256(a.prune_from)} if a.prune_from is not None else {}),
             **({"distill_from": start_sha256(a.distill_from)} if a.distill_from is not None else {}),
             **({"distill_camera_clean": True} if a.distill_camera_clean else {}),
+            **({"one_way_detour": True} if a.one_way_detour else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
 
@@ -897,6 +908,8 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
     if args.distill_from is not None:
         rows = "on the rows of camera-clean episodes (clean or robots only), the teacher's labels elsewhere" if args.distill_camera_clean else "for each training row"
         parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) {rows}, validated on the teacher's")
+    if args.one_way_detour:
+        parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
     if args.features_from is not None:
         how = "kept fixed" if args.freeze_features else "trained on"
         parts.append(f"convolutions from the CNN {args.features_from} (sha256 {start_sha256(args.features_from)[:12]}), {how}")
@@ -920,6 +933,7 @@ class TrainingConfig:
     prune_from: Path | None = None
     distill_from: Path | None = None
     distill_camera_clean: bool = False
+    one_way_detour: bool = False
     test_dataset: Path | None = None
     epochs: int = 0
     epoch_fraction: float = 1.0
@@ -967,6 +981,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--prune-from", type=Path, metavar="MODEL", help="CNN: start from this wider shipped one-network float CNN, each convolution keeping its --filters filters of largest L1 norm (and the next layers the matching channels and columns) instead of random weights")
     parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation stays on the teacher's labels)")
     parser.add_argument("--distill-camera-clean", action="store_true", help="with --distill-from: its commands only on the rows of episodes recorded with no camera, light or venue condition (clean, robots), where a model trained on clean renders sees as it learned to; the teacher's labels on the rest (a robust student of a clean-trained policy, with --camera-augment)")
+    parser.add_argument("--one-way-detour", action="store_true", help="where the teacher walks around the ball to get behind it, on the side of the ball-to-goal line it stands on (a side the images often cannot show), label the rows with the same walk around the ball always clockwise; training and validation rows (dribble_models.one_way_detour)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")

@@ -15,6 +15,7 @@ import torch
 from dribble_models import dataset as ds
 from dribble_models.networks import RCNN, ModalCNN, RCNNStep
 from dribble_models.networks import CNN, PAPER_FILTERS, Filters
+from dribble_models.one_way_detour import OneWayDetour
 from dribble_models.shipped_weights import load_pruned_weights, load_shipped_weights
 from dribble_models.train import (
     CameraAugment,
@@ -340,6 +341,38 @@ def test_distilling_where_the_camera_is_clean_keeps_the_teachers_labels_elsewher
     # Without a model to take commands from, the flag means nothing: refused.
     with pytest.raises(SystemExit):
         parse_args([*common, "--out", "o", "--distill-camera-clean"])
+
+
+def test_the_one_way_detour_relabels_the_teachers_detour_rows_and_outlasts_distillation(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3], 6, rng)
+    index = json.loads((train / "dataset.json").read_text())
+    rule = OneWayDetour()
+    # Seed 1's first two rows: the teacher going around a ball at (1, 0) from its goal side.
+    poses = np.array([[1.0, -0.3, np.pi / 2], [1.05, -0.28, np.pi / 2 + 0.1]])
+    ball = np.array([1.0, 0.0])
+    entry = index["episodes"][0]
+    with np.load(train / entry["file"]) as arrays:
+        episode = dict(arrays)
+    for i, pose in enumerate(poses):
+        episode["robot_pose"][i], episode["ball"][i], episode["phase"][i] = pose, ball, 1
+        episode["command"][i] = rule.command(pose, ball, 1.0, one_way=False)[0]
+    episode["ball"][2:] = ball
+    np.savez_compressed(train / entry["file"], **episode)
+    entry["sha256"] = hashlib.sha256((train / entry["file"]).read_bytes()).hexdigest()
+    entry["conditions"] = "clean"
+    index["content_hash"] = ds.content_hash(index["episodes"])
+    (train / "dataset.json").write_text(json.dumps(index))
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    big = tmp_path / "big"
+    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    flags = ["--distill-from", str(big), "--distill-camera-clean", "--one-way-detour"]
+    trainer = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))
+    one_way = np.array([rule.command(pose, ball, 1.0, one_way=True)[0] for pose in poses], np.float32)
+    # The detour rows keep their one-way labels; the rest of the clean episode is distilled.
+    np.testing.assert_allclose(trainer.rows.command[:2], one_way, atol=1e-6)
+    assert np.abs(trainer.rows.command[2:6] - episode["command"][2:6]).max() > 1e-3
+    np.testing.assert_allclose(trainer.train_episodes[0].command[:2], one_way, atol=1e-6)
+    assert "relabelled to go one way" in notes_of(parse_args([*common, "--out", "o", *flags]))
 
 
 def test_a_pruned_start_takes_the_wide_models_strongest_filters(tmp_path, rng):

@@ -43,10 +43,21 @@ pub enum Teacher {
     /// `visibility::MIN_VISIBLE_THUMBNAIL_PIXELS` of it are unoccluded inside an image, never
     /// through a goal post, a bar, a robot or a person.
     Detector,
+    /// The detector teacher going around the ball always clockwise, seen from above, where it
+    /// must go around it to get behind it, instead of on the side of the ball-to-goal line it
+    /// stands on: facing a plain wall with the ball at its feet, the images cannot show which
+    /// side that is (`dribble_models.one_way_detour` relabels recorded detector rows so).
+    DetectorOneWay,
 }
 
 impl Teacher {
-    pub const ALL: [Self; 4] = [Self::Paper, Self::Observable, Self::Orbit, Self::Detector];
+    pub const ALL: [Self; 5] = [
+        Self::Paper,
+        Self::Observable,
+        Self::Orbit,
+        Self::Detector,
+        Self::DetectorOneWay,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -54,6 +65,7 @@ impl Teacher {
             Self::Observable => "observable",
             Self::Orbit => "orbit",
             Self::Detector => "detector",
+            Self::DetectorOneWay => "detector-one-way",
         }
     }
 }
@@ -72,7 +84,9 @@ impl std::str::FromStr for Teacher {
             .into_iter()
             .find(|teacher| teacher.name() == text)
             .ok_or_else(|| {
-                format!("unknown teacher {text:?}: paper, observable, orbit or detector")
+                format!(
+                    "unknown teacher {text:?}: paper, observable, orbit, detector or detector-one-way"
+                )
             })
     }
 }
@@ -161,6 +175,10 @@ pub fn orbit_sidestep(distance: f32) -> f32 {
     -(ORBIT_TURN * limits.max_turn.0 * distance / limits.max_left.0)
 }
 
+/// How far clockwise around the ball, radians, the one-way detour walks toward
+/// ([`Teacher::DetectorOneWay`]; `dribble_models.one_way_detour`'s `step`).
+pub const ONE_WAY_STEP: f32 = PI / 3.0;
+
 /// The striker.
 #[derive(Clone, Debug)]
 pub struct Expert {
@@ -171,6 +189,8 @@ pub struct Expert {
     memory: Option<BallMemory>,
     /// The orbiting teacher: the goal's direction only while the top camera shows the goal.
     orbit: bool,
+    /// Around the ball always clockwise ([`Teacher::DetectorOneWay`]).
+    one_way: bool,
 }
 
 impl Expert {
@@ -182,6 +202,7 @@ impl Expert {
             phase: Phase::Search,
             memory: None,
             orbit: false,
+            one_way: false,
         }
     }
 
@@ -195,15 +216,19 @@ impl Expert {
         let mut expert = Self::new(config, field);
         expert.memory = match teacher {
             Teacher::Paper => None,
-            Teacher::Detector => Some(BallMemory::detecting(cameras, field)),
+            Teacher::Detector | Teacher::DetectorOneWay => {
+                Some(BallMemory::detecting(cameras, field))
+            }
             Teacher::Observable | Teacher::Orbit => Some(BallMemory::new(cameras, field)),
         };
         expert.orbit = teacher == Teacher::Orbit;
+        expert.one_way = teacher == Teacher::DetectorOneWay;
         expert
     }
 
     pub fn teacher(&self) -> Teacher {
         match (&self.memory, self.orbit) {
+            _ if self.one_way => Teacher::DetectorOneWay,
             (None, _) => Teacher::Paper,
             (Some(memory), false) if memory.rule() != &SightingRule::CentreInImage => {
                 Teacher::Detector
@@ -345,13 +370,20 @@ impl Expert {
         let target = if along > -self.config.approach_distance * 0.5
             && from_ball.length() < self.config.detour_radius * 2.5
         {
-            // Around the side of the ball-to-goal line the robot is on.
-            let side = if to_goal.perp_dot(from_ball) >= 0.0 {
-                to_goal.perp()
+            if self.one_way {
+                // A sixth of a turn clockwise along the detour circle.
+                let around =
+                    Vec2::from_angle(-ONE_WAY_STEP).rotate(from_ball.normalize_or(-to_goal));
+                truth.ball + around * self.config.detour_radius
             } else {
-                -to_goal.perp()
-            };
-            truth.ball + (side - to_goal * 0.6).normalize_or_zero() * self.config.detour_radius
+                // Around the side of the ball-to-goal line the robot is on.
+                let side = if to_goal.perp_dot(from_ball) >= 0.0 {
+                    to_goal.perp()
+                } else {
+                    -to_goal.perp()
+                };
+                truth.ball + (side - to_goal * 0.6).normalize_or_zero() * self.config.detour_radius
+            }
         } else {
             behind_ball
         };
@@ -522,5 +554,55 @@ mod tests {
         let (command, phase) = expert.decide(&lined_up);
         assert_eq!(phase, Phase::Dribble);
         assert!(command.forward() > 0.8);
+    }
+
+    /// `models/fixtures/teacher-approach.json` holds states of the teacher's first approach
+    /// decision and the commands it sends there, which `dribble_models.one_way_detour`
+    /// recomputes to find the detour's rows in recorded data: both sides check the file.
+    #[test]
+    fn the_committed_approach_fixture_is_the_teachers() {
+        #[derive(serde::Deserialize)]
+        struct Row {
+            robot: [f32; 3],
+            ball: [f32; 2],
+            target_side: f32,
+            command: [f32; 3],
+            one_way_command: [f32; 3],
+        }
+        #[derive(serde::Deserialize)]
+        struct Fixture {
+            rows: Vec<Row>,
+        }
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../models/fixtures/teacher-approach.json"
+        );
+        let text = std::fs::read_to_string(path).expect("the committed fixture");
+        let fixture: Fixture = serde_json::from_str(&text).expect("fixture JSON");
+        assert!(fixture.rows.len() > 100);
+        for row in &fixture.rows {
+            let state = GroundTruth {
+                robot: FieldPose::new(row.robot[0], row.robot[1], row.robot[2]),
+                ball: Vec2::from(row.ball),
+                target_side: row.target_side,
+                time_s: 0.0,
+            };
+            for (one_way, want) in [(false, row.command), (true, row.one_way_command)] {
+                let mut expert = Expert::new(ExpertConfig::default(), FieldGeometry::SPL);
+                expert.one_way = one_way;
+                let (command, phase) = expert.decide(&state);
+                assert_eq!(phase, Phase::Approach);
+                for (got, want) in command.as_array().iter().zip(want) {
+                    assert!(
+                        (got - want).abs() < 1e-4,
+                        "{:?} (one way: {one_way}) at robot {:?} ball {:?}: the fixture says {:?}",
+                        command.as_array(),
+                        row.robot,
+                        row.ball,
+                        want
+                    );
+                }
+            }
+        }
     }
 }

@@ -49,9 +49,11 @@ pub struct EvalArgs {
     #[arg(long)]
     pub(crate) render: bool,
     /// Which teacher `--driver teacher` is: `paper` (reads the ball's true position),
-    /// `observable` (knows the ball only while a camera shows it, and where it last saw it) or
+    /// `observable` (knows the ball only while a camera shows it, and where it last saw it),
     /// `orbit` (the observable one, which also walks straight to the ball and circles it to the
-    /// left until the top camera shows the target goal).
+    /// left until the top camera shows the target goal), `detector` (the observable one seeing
+    /// the ball only where enough of it is unoccluded in an image) or `detector-one-way` (the
+    /// detector one, going around the ball always clockwise where it must go around it).
     #[arg(long, alias = "expert", default_value_t = Teacher::Paper)]
     pub(crate) teacher: Teacher,
     /// Time limit per episode, simulated seconds (positive and finite).
@@ -198,6 +200,9 @@ fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> an
             ),
             Teacher::Detector => println!(
                 "driver: the detector teacher (the observable one, seeing the ball only where enough of it is unoccluded in an image)"
+            ),
+            Teacher::DetectorOneWay => println!(
+                "driver: the one-way detector teacher (the detector one, going around the ball always clockwise)"
             ),
         },
         Some(path) => {

@@ -51,8 +51,10 @@ use serde_json::json;
 #[derive(Debug, Args)]
 pub struct GymServerArgs {
     /// The teacher whose command for each observed state goes into `info`: `paper` (reads
-    /// the ball's true position), `observable` (only what its cameras showed) or `orbit`
-    /// (observable, and the goal's direction only while the top camera shows the goal).
+    /// the ball's true position), `observable` (only what its cameras showed), `orbit`
+    /// (observable, and the goal's direction only while the top camera shows the goal),
+    /// `detector` (observable, the ball only where enough of it is unoccluded) or
+    /// `detector-one-way` (detector, around the ball always clockwise).
     #[arg(long, alias = "expert", default_value_t = Teacher::Paper)]
     teacher: Teacher,
     /// Time limit per episode, simulated seconds (positive and finite); the environment

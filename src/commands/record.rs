@@ -61,8 +61,10 @@ pub struct RecordArgs {
     /// teacher`): `paper`, the paper's expert, which reads the ball's true position; or
     /// `observable`, which knows the ball only while a camera shows it and where it last
     /// saw it (DESIGN.md, "Teachers"); or `orbit`, the observable one that also walks straight
-    /// to the ball and circles it to the left until the top camera shows the target goal.
-    /// Recorded in dataset.json.
+    /// to the ball and circles it to the left until the top camera shows the target goal; or
+    /// `detector`, the observable one seeing the ball only where enough of it is unoccluded in
+    /// an image; or `detector-one-way`, the detector one going around the ball always
+    /// clockwise where it must go around it. Recorded in dataset.json.
     #[arg(long, alias = "expert", default_value_t = Teacher::Paper)]
     pub(crate) teacher: Teacher,
     /// What the cameras see the episodes under: `clean`, NAME:SEVERITY[,...] (see `dribble
