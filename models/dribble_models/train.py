@@ -73,6 +73,9 @@ from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_
 from .stalls import CutReport, StallRule, cut_all
 
 SCALE = np.float32(contract.INPUT_SCALE)
+#: The teachers whose rows `--one-way-detour` takes: the detector teacher's, relabelled, and the
+#: one-way detector teacher's own, which it leaves as they are.
+ONE_WAY_TEACHERS = ("detector", "detector-one-way")
 DEFAULT_EPOCHS = {"cnn": 12, "hcnn": 12, "rcnn": 12}
 CHECKPOINT_FORMAT = 1
 
@@ -1046,6 +1049,11 @@ def main(argv: list[str] | None = None) -> int:
         added = [load(directory) for directory in args.add_dataset]
         for training_data in (dataset, *added):
             refuse_reserved(training_data.seeds(), str(training_data.directory))
+            if args.one_way_detour:
+                if training_data.teacher not in ONE_WAY_TEACHERS:
+                    raise DatasetError(f"--one-way-detour relabels the detector teacher's rows; {training_data.directory} is labelled by the {training_data.teacher} teacher")
+                # Relabelled in training: the rows are the one-way teacher's.
+                training_data.teacher = "detector-one-way"
         mixed = sorted({d.teacher for d in (dataset, *added)})
         if len(mixed) > 1:
             raise DatasetError(f"the datasets were labelled by different teachers ({', '.join(mixed)}): a model learns from one")
@@ -1079,7 +1087,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     print("scoring the kept weights on the training and test data", file=sys.stderr)
-    scores = {"train": score(predict(training.model, args.kind, dataset.episodes), dataset.episodes)}
+    train_episodes = OneWayDetour().relabelled(dataset.episodes)[0] if args.one_way_detour else dataset.episodes
+    scores = {"train": score(predict(training.model, args.kind, train_episodes), train_episodes)}
     scores["validation"] = score(predict(training.model, args.kind, training.validation_episodes), training.validation_episodes)
     if test is not None:
         scores["test"] = score(predict(training.model, args.kind, test.episodes), test.episodes)

@@ -363,6 +363,10 @@ def test_the_one_way_detour_relabels_the_teachers_detour_rows_and_outlasts_disti
     index["content_hash"] = ds.content_hash(index["episodes"])
     (train / "dataset.json").write_text(json.dumps(index))
     common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    # The paper teacher's rows are not the detector's: refused.
+    assert main([*common, "--out", str(tmp_path / "p"), "--checkpoint-dir", str(tmp_path / "c-p"), "--one-way-detour"]) == 2
+    index["teacher"] = "detector"
+    (train / "dataset.json").write_text(json.dumps(index))
     big = tmp_path / "big"
     assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
     flags = ["--distill-from", str(big), "--distill-camera-clean", "--one-way-detour"]
@@ -373,6 +377,9 @@ def test_the_one_way_detour_relabels_the_teachers_detour_rows_and_outlasts_disti
     assert np.abs(trainer.rows.command[2:6] - episode["command"][2:6]).max() > 1e-3
     np.testing.assert_allclose(trainer.train_episodes[0].command[:2], one_way, atol=1e-6)
     assert "relabelled to go one way" in notes_of(parse_args([*common, "--out", "o", *flags]))
+    one_way_model = tmp_path / "one-way"
+    assert main([*common, "--out", str(one_way_model), "--checkpoint-dir", str(tmp_path / "c-o"), "--one-way-detour"]) == 0
+    assert 'teacher = "detector-one-way"' in (one_way_model / "policy.toml").read_text()
 
 
 def test_a_pruned_start_takes_the_wide_models_strongest_filters(tmp_path, rng):
