@@ -219,6 +219,7 @@ fn open_process(
         Some(name) => command.args(["--domain", name]),
         None => command.env_remove(Domain::ENV),
     };
+    ends_with_this_process(&mut command);
     let link = Iceoryx2Link::connect(&domain, Some(&mut command), options.timeouts())
         .with_context(|| {
             format!(
@@ -251,6 +252,30 @@ fn open_process(
         );
     }
     Ok(ControllerSession::Process(Box::new(link)))
+}
+
+/// A controller this process starts is sent SIGTERM (which it answers by stopping cleanly)
+/// when this process ends: killed by a signal, this process runs no destructor, and its
+/// controller would otherwise wait for the next lock-step tick for ever. The signal follows
+/// the thread that starts the controller, which is the main thread in every command.
+fn ends_with_this_process(command: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    let parent = std::process::id();
+    // SAFETY: between fork and exec the closure calls only prctl(2) and getppid(2), both
+    // async-signal-safe, and allocates nothing.
+    #[allow(unsafe_code)]
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The parent may have ended before the request was made.
+            if u32::try_from(libc::getppid()).ok() != Some(parent) {
+                libc::raise(libc::SIGTERM);
+            }
+            Ok(())
+        });
+    }
 }
 
 /// The controller program every command starts: `--controller`, else `dribble-controller`

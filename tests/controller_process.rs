@@ -500,6 +500,72 @@ fn eval_reports_a_lost_controller_and_starts_a_new_one() {
     assert_eq!(log.matches("event=ready").count(), 2, "{log}");
 }
 
+/// An eval killed by a signal runs no destructor: the controller it started is sent SIGTERM by
+/// the kernel (its parent-death signal) and stops, where it used to wait for the next tick
+/// for ever.
+#[test]
+fn a_killed_eval_takes_the_controller_it_started_with_it() {
+    let _serial = one_at_a_time();
+    let dir = scratch("eval-killed");
+    let name = domain_name("eval-killed");
+    let mut eval = Guarded(Some(
+        Command::new(env!("CARGO_BIN_EXE_dribble"))
+            .args(["eval", "--domain", &name, "--episodes", "10000..10001"])
+            .args(["--time-limit", "60", "--driver"])
+            .arg(fixture_manifest("cnn"))
+            .arg("--controller")
+            .arg(controller_binary())
+            .arg("--controller-log")
+            .arg(dir.join("controller.log"))
+            .arg("--plot")
+            .arg(dir.join("plot.png"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("eval starts"),
+    ));
+    let stderr = eval.child().stderr.take().expect("stderr");
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(stderr)).map_while(Result::ok);
+    let started = lines
+        .find(|line| line.contains("event=controller_started"))
+        .expect("eval starts a controller");
+    let pid: i32 = started
+        .split(" pid=")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|pid| pid.parse().ok())
+        .unwrap_or_else(|| panic!("no pid in {started:?}"));
+    // The controller ticks in lock step with the episode, then eval is killed as a session's
+    // end or `kill -9` would kill it.
+    wait_for_text(&dir.join("controller.log"), "event=ready", START);
+    std::thread::sleep(Duration::from_millis(300));
+    eval.child().kill().expect("kill eval");
+    eval.child().wait().expect("reaped");
+    // Gone or a zombie awaiting its new parent: no longer running.
+    let running = || {
+        std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .ok()
+            .and_then(|stat| stat.rsplit_once(") ").map(|(_, rest)| rest.to_owned()))
+            .is_some_and(|rest| !rest.starts_with('Z'))
+    };
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while running() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let still_running = running();
+    if still_running {
+        // SAFETY: kill(2) on the controller the test's eval started: not left behind.
+        #[allow(unsafe_code)]
+        unsafe {
+            libc::kill(pid, libc::SIGKILL);
+        }
+    }
+    assert!(
+        !still_running,
+        "controller {pid} still runs after its eval was killed"
+    );
+}
+
 /// The README's evaluation example exactly as a new user types it: no `--domain`, no
 /// `DRIBBLE_DOMAIN`, so the simulator and the controller it starts must meet in iceoryx2's
 /// default domain.
