@@ -409,17 +409,14 @@ fn a_killed_controller_is_cleaned_up_at_the_next_start() {
     );
 }
 
-#[test]
-fn eval_reports_a_lost_controller_and_starts_a_new_one() {
-    let _serial = one_at_a_time();
-    let dir = scratch("eval-restart");
-    let name = domain_name("eval-restart");
-    let policy = fixture_manifest("cnn");
-    let mut eval = Guarded(Some(
+/// `dribble eval` of the fixture CNN on `episodes` in domain `name`, starting its own
+/// controller (log and plot in `dir`), its standard output and error piped.
+fn spawn_eval(dir: &Path, name: &str, episodes: &str, time_limit: &str) -> Guarded {
+    Guarded(Some(
         Command::new(env!("CARGO_BIN_EXE_dribble"))
-            .args(["eval", "--domain", &name, "--episodes", "10000..10002"])
-            .args(["--time-limit", "20", "--driver"])
-            .arg(&policy)
+            .args(["eval", "--domain", name, "--episodes", episodes])
+            .args(["--time-limit", time_limit, "--driver"])
+            .arg(fixture_manifest("cnn"))
             .arg("--controller")
             .arg(controller_binary())
             .arg("--controller-log")
@@ -430,7 +427,24 @@ fn eval_reports_a_lost_controller_and_starts_a_new_one() {
             .stderr(Stdio::piped())
             .spawn()
             .expect("eval starts"),
-    ));
+    ))
+}
+
+/// The pid in eval's "event=controller_started binary=... pid=N ..." line.
+fn started_pid(line: &str) -> libc::pid_t {
+    line.split(" pid=")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|pid| pid.parse().ok())
+        .unwrap_or_else(|| panic!("no pid in {line:?}"))
+}
+
+#[test]
+fn eval_reports_a_lost_controller_and_starts_a_new_one() {
+    let _serial = one_at_a_time();
+    let dir = scratch("eval-restart");
+    let name = domain_name("eval-restart");
+    let mut eval = spawn_eval(&dir, &name, "10000..10002", "20");
     // Results come on stdout, log events on stderr: one channel of lines for both.
     let stdout = eval.child().stdout.take().expect("stdout");
     let stderr = eval.child().stderr.take().expect("stderr");
@@ -456,12 +470,7 @@ fn eval_reports_a_lost_controller_and_starts_a_new_one() {
             break line;
         }
     };
-    let pid: libc::pid_t = started
-        .split(" pid=")
-        .nth(1)
-        .and_then(|rest| rest.split(' ').next())
-        .and_then(|pid| pid.parse().ok())
-        .unwrap_or_else(|| panic!("no pid in {started:?}"));
+    let pid = started_pid(&started);
     std::thread::sleep(Duration::from_millis(500));
     // SAFETY: kill(2) on the controller eval started; SIGKILL, as a crash would.
     #[allow(unsafe_code)]
@@ -508,33 +517,13 @@ fn a_killed_eval_takes_the_controller_it_started_with_it() {
     let _serial = one_at_a_time();
     let dir = scratch("eval-killed");
     let name = domain_name("eval-killed");
-    let mut eval = Guarded(Some(
-        Command::new(env!("CARGO_BIN_EXE_dribble"))
-            .args(["eval", "--domain", &name, "--episodes", "10000..10001"])
-            .args(["--time-limit", "60", "--driver"])
-            .arg(fixture_manifest("cnn"))
-            .arg("--controller")
-            .arg(controller_binary())
-            .arg("--controller-log")
-            .arg(dir.join("controller.log"))
-            .arg("--plot")
-            .arg(dir.join("plot.png"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("eval starts"),
-    ));
+    let mut eval = spawn_eval(&dir, &name, "10000..10001", "60");
     let stderr = eval.child().stderr.take().expect("stderr");
     let mut lines = std::io::BufRead::lines(std::io::BufReader::new(stderr)).map_while(Result::ok);
     let started = lines
         .find(|line| line.contains("event=controller_started"))
         .expect("eval starts a controller");
-    let pid: i32 = started
-        .split(" pid=")
-        .nth(1)
-        .and_then(|rest| rest.split(' ').next())
-        .and_then(|pid| pid.parse().ok())
-        .unwrap_or_else(|| panic!("no pid in {started:?}"));
+    let pid = started_pid(&started);
     // The controller ticks in lock step with the episode, then eval is killed as a session's
     // end or `kill -9` would kill it.
     wait_for_text(&dir.join("controller.log"), "event=ready", START);
