@@ -4,17 +4,20 @@
 //! on its wrong side), align (circle the ball until facing the goal), dribble (walk through
 //! the ball toward the goal, correcting sideways).
 //!
-//! Three teachers play it (DESIGN.md, "Teachers"; [`Teacher`]): the paper's reads the ball's
+//! Five teachers play it (DESIGN.md, "Teachers"; [`Teacher`]): the paper's reads the ball's
 //! true position always, and so searches by turning toward a ball no image shows; the
 //! observable one knows the ball only through its cameras ([`BallMemory`]), remembers where
 //! it last saw it, and searches to the side it last saw it on, or to the left before the
 //! first sighting. The orbiting one is the observable one that also leaves the goal's
 //! direction out of its approach and alignment while no camera shows the target goal: it
 //! walks straight to the ball, circles it to the left until the middle of the goal's mouth is
-//! in the top image, then turns toward it ([`ORBIT_TURN`]). All take their own pose from ground truth,
-//! standing in for self-localisation as in the paper; which goal is the target (the one on
-//! the ball's half) stays ground truth for all three, as a symmetric field's images cannot
-//! tell the two goals apart.
+//! in the top image, then turns toward it ([`ORBIT_TURN`]). The detector teacher is the
+//! observable one seeing the ball as a detector would; the one-way detector teacher also goes
+//! around the ball always clockwise where it must go around it ([`ONE_WAY_STEP`]), a direction
+//! the images explain where the side of the ball-to-goal line is not. All take their own
+//! pose from ground truth, standing in for self-localisation as in the paper; which goal is
+//! the target (the one on the ball's half) stays ground truth for all, as a symmetric field's
+//! images cannot tell the two goals apart.
 
 use core::f32::consts::PI;
 
@@ -526,6 +529,13 @@ mod tests {
     fn teachers_are_named_on_the_command_line_as_in_the_manifests() {
         for teacher in Teacher::ALL {
             assert_eq!(teacher.name().parse::<Teacher>(), Ok(teacher));
+            let expert = Expert::teaching(
+                teacher,
+                ExpertConfig::default(),
+                FieldGeometry::SPL,
+                CameraGeometry::nao(),
+            );
+            assert_eq!(expert.teacher(), teacher);
         }
         assert!("oracle".parse::<Teacher>().is_err());
         assert_eq!(Teacher::default(), Teacher::Paper);
