@@ -34,6 +34,10 @@ demonstrations and exports a model directory the controller loads.
   where the images do not say which way the teacher turned, the shipped network has already
   settled on one answer per image, where the teacher's labels average to none. Validation,
   the checkpoint choice and every reported error stay against the teacher's labels.
+- One-way detour: `--one-way-detour` relabels the detector teacher's detour around the ball
+  to go always clockwise (dribble_models.one_way_detour), on training and validation rows,
+  and the model names the `detector-one-way` teacher: where the two-way detour's side cannot
+  be seen, its labels disagree in states that look alike.
 - Device: `--device auto` (the default) trains on a CUDA GPU where PyTorch sees one, else on
   the CPU; the manifest's notes say which. On a GPU cuDNN and cuBLAS run their deterministic
   algorithms, so a seed gives the same model again on the same GPU, but not the CPU's model
