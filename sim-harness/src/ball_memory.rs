@@ -70,10 +70,6 @@ impl BallMemory {
         }
     }
 
-    pub fn rule(&self) -> &SightingRule {
-        &self.rule
-    }
-
     /// For a detector's memory: what stands about in this episode (robots, people) hides
     /// the ball too, besides the goals.
     pub fn see_among(&mut self, occluders: &[Occluder]) {

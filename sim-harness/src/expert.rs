@@ -29,7 +29,6 @@ use crate::camera_geometry::CameraGeometry;
 use crate::conditions::EpisodeLook;
 use crate::field::FieldGeometry;
 use crate::pose::{FieldPose, wrap_angle};
-use crate::visibility::SightingRule;
 
 /// Which teacher labels and drives (DESIGN.md, "Teachers").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -190,10 +189,9 @@ pub struct Expert {
     phase: Phase,
     /// The observable teachers' knowledge of the ball; `None` for the paper's.
     memory: Option<BallMemory>,
-    /// The orbiting teacher: the goal's direction only while the top camera shows the goal.
-    orbit: bool,
-    /// Around the ball always clockwise ([`Teacher::DetectorOneWay`]).
-    one_way: bool,
+    /// Which teacher this is: the orbiting one leaves the goal's direction out until the top
+    /// camera shows the goal, the one-way one goes around the ball always clockwise.
+    teacher: Teacher,
 }
 
 impl Expert {
@@ -204,8 +202,7 @@ impl Expert {
             field,
             phase: Phase::Search,
             memory: None,
-            orbit: false,
-            one_way: false,
+            teacher: Teacher::Paper,
         }
     }
 
@@ -224,21 +221,17 @@ impl Expert {
             }
             Teacher::Observable | Teacher::Orbit => Some(BallMemory::new(cameras, field)),
         };
-        expert.orbit = teacher == Teacher::Orbit;
-        expert.one_way = teacher == Teacher::DetectorOneWay;
+        expert.teacher = teacher;
         expert
     }
 
     pub fn teacher(&self) -> Teacher {
-        match (&self.memory, self.orbit) {
-            _ if self.one_way => Teacher::DetectorOneWay,
-            (None, _) => Teacher::Paper,
-            (Some(memory), false) if memory.rule() != &SightingRule::CentreInImage => {
-                Teacher::Detector
-            }
-            (Some(_), false) => Teacher::Observable,
-            (Some(_), true) => Teacher::Orbit,
-        }
+        self.teacher
+    }
+
+    /// The orbiting teacher: the goal's direction only while the top camera shows the goal.
+    fn orbits(&self) -> bool {
+        self.teacher == Teacher::Orbit
     }
 
     /// Starts an episode seen through `look`: a detector's sightings are hidden by what
@@ -290,7 +283,7 @@ impl Expert {
         let heading_error = wrap_angle(goal_heading - robot.theta);
         // Where it walks to: behind the ball on the ball-to-goal line, or (orbiting) the
         // point at the approach distance on its own side of the ball.
-        let stand_off = if self.orbit {
+        let stand_off = if self.orbits() {
             (truth.ball - Vec2::new(robot.x, robot.y)).normalize_or(Vec2::X)
         } else {
             to_goal
@@ -301,10 +294,10 @@ impl Expert {
         self.phase = self.next_phase(ball, ball_bearing, behind, heading_error);
         let command = match self.phase {
             Phase::Search => search(ball_bearing),
-            Phase::Approach if self.orbit => walk_towards(behind, ball_bearing, 1.0),
+            Phase::Approach if self.orbits() => walk_towards(behind, ball_bearing, 1.0),
             Phase::Approach => self.approach(truth, ball, behind_ball, to_goal),
             // The orbiting teacher knows the goal's direction only while the goal is in view.
-            Phase::Align if !self.orbit || self.goal_in_view(truth) => {
+            Phase::Align if !self.orbits() || self.goal_in_view(truth) => {
                 let turn = (heading_error * 1.6).clamp(-1.0, 1.0);
                 self.align(ball, behind, turn, -turn * 0.35)
             }
@@ -373,7 +366,7 @@ impl Expert {
         let target = if along > -self.config.approach_distance * 0.5
             && from_ball.length() < self.config.detour_radius * 2.5
         {
-            if self.one_way {
+            if self.teacher == Teacher::DetectorOneWay {
                 // A sixth of a turn clockwise along the detour circle.
                 let around =
                     Vec2::from_angle(-ONE_WAY_STEP).rotate(from_ball.normalize_or(-to_goal));
@@ -598,8 +591,11 @@ mod tests {
                 time_s: 0.0,
             };
             for (one_way, want) in [(false, row.command), (true, row.one_way_command)] {
+                // The paper's ground-truth ball, with the one-way detour or the two-way one.
                 let mut expert = Expert::new(ExpertConfig::default(), FieldGeometry::SPL);
-                expert.one_way = one_way;
+                if one_way {
+                    expert.teacher = Teacher::DetectorOneWay;
+                }
                 let (command, phase) = expert.decide(&state);
                 assert_eq!(phase, Phase::Approach);
                 for (got, want) in command.as_array().iter().zip(want) {
