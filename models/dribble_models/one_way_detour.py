@@ -11,17 +11,17 @@ conditions students on selection seeds 20009, 20011 and 20013 (docs/src/history/
 conditions-students.md), whose outputs there were 0.00 on all three axes while the shipped
 model stepped sideways.
 
-`OneWayDetour.relabel` gives those rows the teacher's own walk (`walk_towards`) toward a point
-on the detour circle a sixth of a turn clockwise, seen from above, of the robot: around the
-ball always the same way, a direction the images explain. It loses only which side of the
-ball-to-goal line is shorter, which the robot cannot see there. Where the robot has come
+`OneWayDetour.relabelled` gives those rows the teacher's own walk (`walk_towards`) toward a
+point on the detour circle a sixth of a turn clockwise, seen from above, of the robot: around
+the ball always the same way, a direction the images explain. It loses only which side of
+the ball-to-goal line is shorter, which the robot cannot see there. Where the robot has come
 round behind the ball the recorded labels stand. The `detector-one-way` teacher
 (`Teacher::DetectorOneWay`) drives and labels the same way; this relabelling lets the
-recorded detector data and rounds serve it without recording them again. The rows are found from the recorded ground
-truth (robot pose, ball, the target goal from the ball's first position): a row is relabelled
-only where the teacher's two-way detour, recomputed here, gives the command it recorded (to
-1e-3), so rows whose ball was remembered rather than seen, rows of another phase and rows a
-distillation relabels are told apart from the detour's.
+recorded detector data and rounds serve it without recording them again. The rows are found
+from the recorded ground truth (robot pose, ball, the target goal from the ball's first
+position): a row is relabelled only where the teacher's two-way detour, recomputed here,
+gives the command it recorded (to 1e-3), so rows whose ball was remembered rather than seen,
+rows of another phase and rows the one-way teacher recorded itself are left as they are.
 """
 
 from __future__ import annotations
@@ -32,10 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dataset import Episode
+from .dataset import PHASES, Episode
+from .eval_summary import GOAL_X_M
 
 #: The phase code of the teacher's approach (`expert::Phase::Approach`).
-APPROACH = 1
+APPROACH = PHASES.index("approach")
 #: How close to the recorded command a recomputed two-way detour must come to count as the
 #: teacher's detour row (the recomputation matches to float rounding on recorded data).
 REPRODUCED = 1e-3
@@ -47,7 +48,7 @@ class OneWayDetour:
 
     approach_distance: float = 0.28
     detour_radius: float = 0.4
-    goal_x: float = 4.5
+    goal_x: float = GOAL_X_M
     #: How far clockwise around the ball, radians, the one-way detour's target lies.
     step: float = math.pi / 3
 

@@ -1053,24 +1053,23 @@ def main(argv: list[str] | None = None) -> int:
         added = [load(directory) for directory in args.add_dataset]
         for training_data in (dataset, *added):
             refuse_reserved(training_data.seeds(), str(training_data.directory))
-            if args.one_way_detour:
-                if training_data.teacher not in ONE_WAY_TEACHERS:
-                    raise DatasetError(f"--one-way-detour relabels the detector teacher's rows; {training_data.directory} is labelled by the {training_data.teacher} teacher")
-                # Relabelled in training: the rows are the one-way teacher's.
-                training_data.teacher = "detector-one-way"
+            if args.one_way_detour and training_data.teacher not in ONE_WAY_TEACHERS:
+                raise DatasetError(f"--one-way-detour relabels the detector teacher's rows; {training_data.directory} is labelled by the {training_data.teacher} teacher")
+        # Relabelled in training, the detector teacher's rows are the one-way teacher's.
+        teacher = "detector-one-way" if args.one_way_detour else dataset.teacher
         mixed = sorted({d.teacher for d in (dataset, *added)})
-        if len(mixed) > 1:
+        if len(mixed) > 1 and not args.one_way_detour:
             raise DatasetError(f"the datasets were labelled by different teachers ({', '.join(mixed)}): a model learns from one")
         if args.test_dataset:
             # Checked now, read only after training: test data never reaches training.
             test_index = read_index(args.test_dataset)
-            if (test_index.get("teacher") or "paper") != dataset.teacher:
-                raise DatasetError(f"{args.test_dataset} is labelled by the {test_index.get('teacher') or 'paper'} teacher, the training data by the {dataset.teacher} one")
+            if (test_index.get("teacher") or "paper") != teacher:
+                raise DatasetError(f"{args.test_dataset} is labelled by the {test_index.get('teacher') or 'paper'} teacher, the training data by the {teacher} one")
             test_seeds = {int(e["seed"]) for e in test_index["episodes"]}
             for training_data in (dataset, *added):
                 if test_seeds & set(training_data.seeds()):
                     raise DatasetError(f"{args.test_dataset} shares episodes {sorted(test_seeds & set(training_data.seeds()))} with {training_data.directory}")
-        print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}, labelled by the {dataset.teacher} teacher", file=sys.stderr)
+        print(f"training data {args.dataset}: {len(dataset.episodes)} episodes, {dataset.rows} rows, hash {dataset.content_hash[:12]}, labelled by the {teacher} teacher", file=sys.stderr)
         for extra in added:
             print(f"  plus {extra.directory}: {len(extra.episodes)} episodes, {extra.rows} rows, hash {extra.content_hash[:12]}", file=sys.stderr)
         print(f"training on {device_name(device)}", file=sys.stderr)
@@ -1100,7 +1099,7 @@ def main(argv: list[str] | None = None) -> int:
         dataset=str(args.dataset.name),
         epochs=training.epoch,
         dataset_hash=dataset.content_hash,
-        teacher=dataset.teacher,
+        teacher=teacher,
         test_dataset_hash=test.content_hash if test else None,
         added_datasets=[(d.directory.name, d.content_hash) for d in added] or None,
         best_epoch=training.best["epoch"],
