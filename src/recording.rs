@@ -60,13 +60,18 @@ pub(crate) fn configuration(
     serde_json::Value,
     Option<serde_json::Value>,
 )> {
-    let simulator = serde_json::json!({
+    let mut simulator = serde_json::json!({
         "world": format!("{:?}", config.world),
         "walk": format!("{:?}", config.walk),
         "cameras": serde_json::to_value(config.cameras)?,
         "control": format!("{:?}", config.control),
         "time_limit_s": config.time_limit_s,
     });
+    if args.clean_twin {
+        // Named only when on, so that datasets recorded before it resume as they were; a
+        // resumed run must repeat it (every episode has the twin's thumbnails, or none).
+        simulator["clean_twin"] = serde_json::Value::Bool(true);
+    }
     let expert = serde_json::json!(format!("{expert_config:?}"));
     let driver = policy.map(|(path, manifest)| {
         serde_json::json!({

@@ -38,6 +38,10 @@ class Episode:
     # The conditions it was recorded under as `dribble record` names them ("clean",
     # "noise:3,robots:2"); None where dataset.json predates conditions.
     conditions: str | None = None
+    # Recorded with `dribble record --clean-twin`: the thumbnails of the same frames on the
+    # paper's clean render (no camera effect, light or venue; robots kept).
+    top_clean: np.ndarray | None = None  # u8 [T, 120, 160]
+    bottom_clean: np.ndarray | None = None  # u8 [T, 60, 80]
 
     def __len__(self) -> int:
         return len(self.phase)
@@ -46,7 +50,12 @@ class Episode:
         """Rows start..end (exclusive) as an episode of the same seed."""
         part = slice(start, end)
         optional = (None if a is None else a[part] for a in (self.robot_pose, self.ball, self.time_s))
-        return Episode(self.seed, self.top[part], self.bottom[part], self.command[part], self.phase[part], *optional, conditions=self.conditions)
+        twin = (None if a is None else a[part] for a in (self.top_clean, self.bottom_clean))
+        return Episode(self.seed, self.top[part], self.bottom[part], self.command[part], self.phase[part], *optional, self.conditions, *twin)
+
+    @property
+    def has_clean_twin(self) -> bool:
+        return self.top_clean is not None
 
 
 @dataclass
@@ -134,10 +143,16 @@ def load(directory: Path, require_seeds: list[int] | None = None) -> Dataset:
                 ball=arrays["ball"] if "ball" in arrays.files else None,
                 time_s=arrays["time_s"] if "time_s" in arrays.files else None,
                 conditions=entry.get("conditions"),
+                top_clean=arrays["top_clean"] if "top_clean" in arrays.files else None,
+                bottom_clean=arrays["bottom_clean"] if "bottom_clean" in arrays.files else None,
             )
         rows = len(episode)
         shapes = (episode.top.shape, episode.bottom.shape, episode.command.shape)
         if shapes != ((rows, 120, 160), (rows, 60, 80), (rows, 3)) or rows != entry["rows"]:
             raise DatasetError(f"{directory / entry['file']}: arrays {shapes} do not hold the {entry['rows']} rows dataset.json lists")
+        if (episode.top_clean is None) != (episode.bottom_clean is None) or (
+            episode.has_clean_twin and (episode.top_clean.shape, episode.bottom_clean.shape) != ((rows, 120, 160), (rows, 60, 80))
+        ):
+            raise DatasetError(f"{directory / entry['file']}: its clean twin's thumbnails (top_clean, bottom_clean) do not hold its {rows} rows")
         episodes.append(episode)
     return Dataset(directory, digest, episodes, teacher=index.get("teacher") or "paper")

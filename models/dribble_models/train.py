@@ -391,9 +391,11 @@ class Rows:
         )
 
 
-def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str = "cpu", chunk: int = 512) -> np.ndarray:
+def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str = "cpu", chunk: int = 512, episodes: list[Episode] | None = None) -> np.ndarray:
     """The commands the shipped float CNN at `model_path` sends for each of `rows`' images:
-    the labels of `--distill-from`."""
+    the labels of `--distill-from`. Given the `episodes` the rows were made of, in order, an
+    episode's rows that have a clean twin (`dribble record --clean-twin`) are shown their
+    twin's thumbnails instead: what a clean-trained model sees of the same state."""
     if not is_shipped_model(model_path):
         raise DatasetError(f"--distill-from {model_path}: not a shipped model (a directory with policy.toml)")
     teacher = CNN(PAPER_FILTERS)
@@ -402,12 +404,28 @@ def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str 
     except ShippedWeightsError as error:
         raise DatasetError(f"--distill-from: {error}") from error
     teacher.to(device).eval()
+
+    def commands(top_images: np.ndarray, bottom_images: np.ndarray, out: np.ndarray) -> None:
+        with torch.no_grad():
+            for start in range(0, len(out), chunk):
+                end = min(start + chunk, len(out))
+                top, bottom = to_input(top_images[start:end], device), to_input(bottom_images[start:end], device)
+                out[start:end] = sent_commands(teacher(top, bottom).cpu().numpy())
+
     out = np.empty_like(rows.command)
-    with torch.no_grad():
-        for start in range(0, len(out), chunk):
-            end = min(start + chunk, len(out))
-            top, bottom = to_input(rows.top[start:end], device), to_input(rows.bottom[start:end], device)
-            out[start:end] = sent_commands(teacher(top, bottom).cpu().numpy())
+    if episodes is None:
+        commands(rows.top, rows.bottom, out)
+        return out
+    if sum(len(e) for e in episodes) != len(out):
+        raise ValueError("distilled_commands: the episodes do not make up the rows")
+    offset = 0
+    for episode in episodes:
+        end = offset + len(episode)
+        if episode.has_clean_twin:
+            commands(episode.top_clean, episode.bottom_clean, out[offset:end])
+        else:
+            commands(rows.top[offset:end], rows.bottom[offset:end], out[offset:end])
+        offset = end
     return out
 
 
@@ -422,6 +440,12 @@ def camera_clean(episode: Episode) -> bool:
     was trained to, so `--distill-camera-clean` takes its commands there."""
     names = {part.split(":")[0] for part in (episode.conditions or "clean").split(",")}
     return names <= CAMERA_CLEAN_CONDITIONS
+
+
+def seen_clean(episode: Episode) -> bool:
+    """Whether a clean-trained policy can see `episode`'s states as it learned to: the
+    episode is camera-clean, or it was recorded with a clean twin of every frame."""
+    return camera_clean(episode) or episode.has_clean_twin
 
 
 def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
@@ -521,10 +545,15 @@ class Training:
         if args.distill_from is not None:
             if self.kind != "cnn" or args.modes != 1:
                 raise DatasetError("--distill-from trains a one-output CNN (--kind cnn, --modes 1)")
-            distilled = distilled_commands(args.distill_from, self.rows, self.device)
+            distilled = distilled_commands(args.distill_from, self.rows, self.device, episodes=self.train_episodes)
             if args.distill_camera_clean:
-                clean = np.concatenate([np.full(len(e), camera_clean(e)) for e in self.train_episodes])
-                print(f"distilled labels on {int(clean.sum())} of {len(clean)} rows (camera-clean episodes)", file=sys.stderr)
+                clean = np.concatenate([np.full(len(e), seen_clean(e)) for e in self.train_episodes])
+                twinned = sum(len(e) for e in self.train_episodes if e.has_clean_twin and not camera_clean(e))
+                print(
+                    f"distilled labels on {int(clean.sum())} of {len(clean)} rows (camera-clean episodes; "
+                    f"{twinned} of them conditioned rows labelled from their clean twins)",
+                    file=sys.stderr,
+                )
                 distilled = np.where(clean[:, None], distilled, self.rows.command)
             if args.one_way_detour:
                 distilled = np.where(detour[:, None], self.rows.command, distilled)
@@ -913,7 +942,7 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
     if args.prune_from is not None:
         parts.append(f"started from {args.prune_from} (sha256 {start_sha256(args.prune_from)[:12]}) pruned to these filters, largest L1 norms kept")
     if args.distill_from is not None:
-        rows = "on the rows of camera-clean episodes (clean or robots only), the teacher's labels elsewhere" if args.distill_camera_clean else "for each training row"
+        rows = "on the rows of camera-clean episodes (clean or robots only) and, where recorded, the clean twins of conditioned rows; the teacher's labels elsewhere" if args.distill_camera_clean else "for each training row (its clean twin where recorded)"
         parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) {rows}, validated on the teacher's")
     if args.one_way_detour:
         parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
@@ -987,7 +1016,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote), or from a shipped one-network float model (its directory or policy.toml: dribble_models.shipped_weights), instead of random ones")
     parser.add_argument("--prune-from", type=Path, metavar="MODEL", help="CNN: start from this wider shipped one-network float CNN, each convolution keeping its --filters filters of largest L1 norm (and the next layers the matching channels and columns) instead of random weights")
     parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation stays on the teacher's labels)")
-    parser.add_argument("--distill-camera-clean", action="store_true", help="with --distill-from: its commands only on the rows of episodes recorded with no camera, light or venue condition (clean, robots), where a model trained on clean renders sees as it learned to; the teacher's labels on the rest (a robust student of a clean-trained policy, with --camera-augment)")
+    parser.add_argument("--distill-camera-clean", action="store_true", help="with --distill-from: its commands only where a model trained on clean renders sees as it learned to: the rows of episodes recorded with no camera, light or venue condition (clean, robots), and conditioned rows recorded with a clean twin (`dribble record --clean-twin`: its commands on the twin's thumbnails); the teacher's labels on the rest (a robust student of a clean-trained policy, with --camera-augment)")
     parser.add_argument("--one-way-detour", action="store_true", help="where the teacher walks around the ball to get behind it, on the side of the ball-to-goal line it stands on (a side the images often cannot show), label the rows with the same walk around the ball always clockwise; training and validation rows (dribble_models.one_way_detour)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")

@@ -39,14 +39,22 @@ from dribble_models.results import main as results_main
 from test_dataset import dribble_binary
 
 
-def write_dataset(directory: Path, seeds: list[int], rows: int, rng: np.random.Generator) -> Path:
-    """A dataset in `dribble record`'s format with random thumbnails and commands."""
+def write_dataset(directory: Path, seeds: list[int], rows: int, rng: np.random.Generator, twinned: tuple[int, ...] = ()) -> Path:
+    """A dataset in `dribble record`'s format with random thumbnails and commands; the
+    episodes of the `twinned` seeds carry clean-twin thumbnails (`--clean-twin`)."""
     directory.mkdir(parents=True, exist_ok=True)
     entries = []
     for seed in seeds:
         file = f"episode_{seed:05}.npz"
+        twin = {}
+        if seed in twinned:
+            twin = {
+                "top_clean": rng.integers(0, 256, (rows, 120, 160), dtype=np.uint8),
+                "bottom_clean": rng.integers(0, 256, (rows, 60, 80), dtype=np.uint8),
+            }
         np.savez_compressed(
             directory / file,
+            **twin,
             top=rng.integers(0, 256, (rows, 120, 160), dtype=np.uint8),
             bottom=rng.integers(0, 256, (rows, 60, 80), dtype=np.uint8),
             command=rng.uniform(-1, 1, (rows, 3)).astype(np.float32),
@@ -341,6 +349,51 @@ def test_distilling_where_the_camera_is_clean_keeps_the_teachers_labels_elsewher
     # Without a model to take commands from, the flag means nothing: refused.
     with pytest.raises(SystemExit):
         parse_args([*common, "--out", "o", "--distill-camera-clean"])
+
+
+def test_conditioned_rows_with_a_clean_twin_take_the_models_commands_on_the_twin(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3, 4], 6, rng, twinned=(2,))
+    index = json.loads((train / "dataset.json").read_text())
+    for entry, conditions in zip(index["episodes"], ["clean", "contrast:3", "noise:2", "clean"]):
+        entry["conditions"] = conditions
+    (train / "dataset.json").write_text(json.dumps(index))
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    big = tmp_path / "big"
+    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    flags = ["--distill-from", str(big), "--distill-camera-clean"]
+    trainer = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))
+    clean, twinned, untwinned = trainer.train_episodes
+    assert (clean.has_clean_twin, twinned.has_clean_twin, untwinned.has_clean_twin) == (False, True, False)
+    net = CNN(PAPER_FILTERS)
+    load_shipped_weights(net, big, "cnn")
+
+    def sent(top, bottom):
+        with torch.no_grad():
+            return sent_commands(net.eval()(to_input(top), to_input(bottom)).numpy())
+
+    # Seed 1 (clean): the model on its own images; seed 2 (contrast, twinned): the model on
+    # the twin's images, not on the conditioned ones; seed 3 (noise, no twin): the teacher's.
+    np.testing.assert_allclose(trainer.rows.command[:6], sent(clean.top, clean.bottom), atol=1e-6)
+    np.testing.assert_allclose(trainer.rows.command[6:12], sent(twinned.top_clean, twinned.bottom_clean), atol=1e-6)
+    assert not np.allclose(trainer.rows.command[6:12], sent(twinned.top, twinned.bottom), atol=1e-3)
+    np.testing.assert_array_equal(trainer.rows.command[12:], untwinned.command)
+    # A piece of an episode (a stall cut) keeps its twin's rows.
+    piece = twinned.rows(2, 5)
+    np.testing.assert_array_equal(piece.top_clean, twinned.top_clean[2:5])
+    np.testing.assert_array_equal(piece.bottom_clean, twinned.bottom_clean[2:5])
+
+
+def test_a_clean_twin_that_does_not_hold_the_rows_is_refused(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1], 4, rng)
+    with np.load(train / "episode_00001.npz") as arrays:
+        kept = {name: arrays[name] for name in arrays.files}
+    np.savez_compressed(train / "episode_00001.npz", **kept, top_clean=kept["top"][:3], bottom_clean=kept["bottom"][:3])
+    index = json.loads((train / "dataset.json").read_text())
+    index["episodes"][0]["sha256"] = hashlib.sha256((train / "episode_00001.npz").read_bytes()).hexdigest()
+    index["content_hash"] = ds.content_hash(index["episodes"])
+    (train / "dataset.json").write_text(json.dumps(index))
+    with pytest.raises(ds.DatasetError, match="clean twin"):
+        ds.load(train)
 
 
 def test_the_one_way_detour_relabels_the_teachers_detour_rows_and_outlasts_distillation(tmp_path, rng):

@@ -53,6 +53,10 @@ pub struct EpisodeRecording {
     /// expert's command was executed instead.
     policy_command: Vec<f32>,
     expert_executed: Vec<u8>,
+    /// Rows of an episode recorded with a clean twin only: the thumbnails of the same frames
+    /// on the paper's clean render.
+    top_clean: Vec<u8>,
+    bottom_clean: Vec<u8>,
 }
 
 /// What a learned policy commanded in a row whose `command` is the expert's label.
@@ -76,6 +80,9 @@ pub struct Row<'a> {
     /// In a policy-driven (labelled) episode: the policy's own command; `command` is then
     /// the expert's label for this state. Every row of an episode has one, or none does.
     pub policy_command: Option<PolicyCommand>,
+    /// In an episode recorded with a clean twin (`render::CleanTwin`): the thumbnails of the
+    /// same frames on the paper's clean render. Every row of an episode has them, or none.
+    pub clean_twin: Option<(&'a TopThumbnail, &'a BottomThumbnail)>,
 }
 
 impl EpisodeRecording {
@@ -93,10 +100,19 @@ impl EpisodeRecording {
                 .extend_from_slice(&policy.speed.as_array());
             self.expert_executed.push(u8::from(policy.expert_executed));
         }
+        if let Some((top, bottom)) = row.clean_twin {
+            self.top_clean.extend_from_slice(top.as_bytes());
+            self.bottom_clean.extend_from_slice(bottom.as_bytes());
+        }
     }
 
     pub fn rows(&self) -> usize {
         self.time_s.len()
+    }
+
+    /// Whether the rows carry the thumbnails of a clean twin.
+    pub fn has_clean_twin(&self) -> bool {
+        !self.top_clean.is_empty()
     }
 
     /// Whether the rows carry a policy's own commands (a labelled, policy-driven episode).
@@ -107,7 +123,8 @@ impl EpisodeRecording {
     /// The episode as `.npz` bytes: `top` u8[T,120,160], `bottom` u8[T,60,80], `command`
     /// f32[T,3], `robot_pose` f32[T,3], `ball` f32[T,2], `time_s` f64[T], `phase` u8[T];
     /// a policy-driven episode adds `policy_command` f32[T,3] and `expert_executed` u8[T]
-    /// (`command` is then the expert's label).
+    /// (`command` is then the expert's label); an episode recorded with a clean twin adds
+    /// `top_clean` u8[T,120,160] and `bottom_clean` u8[T,60,80].
     pub fn to_npz(&self) -> Vec<u8> {
         let t = self.rows();
         let mut arrays: Vec<(&str, Vec<u8>)> = vec![
@@ -122,6 +139,10 @@ impl EpisodeRecording {
         if self.is_policy_driven() {
             arrays.push(("policy_command", npy(&[t, 3], &self.policy_command)));
             arrays.push(("expert_executed", npy(&[t], &self.expert_executed)));
+        }
+        if self.has_clean_twin() {
+            arrays.push(("top_clean", npy(&[t, 120, 160], &self.top_clean)));
+            arrays.push(("bottom_clean", npy(&[t, 60, 80], &self.bottom_clean)));
         }
         let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
         let options = zip::write::SimpleFileOptions::default()
@@ -564,6 +585,7 @@ mod tests {
                 time_s: f64::from(i) / 30.0,
                 phase: Phase::Dribble,
                 policy_command: None,
+                clean_twin: None,
             });
         }
         recording

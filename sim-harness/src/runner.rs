@@ -32,7 +32,7 @@ use crate::dataset::{EpisodeRecording, Outcome, PolicyCommand, Row};
 use crate::episode::EpisodeSetup;
 use crate::episode_observer::{EpisodeObserver, NoObserver};
 use crate::expert::{Expert, GroundTruth, Phase};
-use crate::render::{RenderError, Renderer};
+use crate::render::{CleanTwin, RenderError, Renderer};
 use crate::simulation::{STEPS_PER_MOTION_CYCLE, Simulation};
 use crate::visibility::Visibility;
 use crate::walk::WalkConfig;
@@ -290,12 +290,14 @@ trait MotionCycles {
         bottom: &BottomFrame,
     ) -> Result<(), String>;
 
-    /// The motion cycle at the simulation's time: its command, or why none came.
+    /// The motion cycle at the simulation's time: its command, or why none came. A row
+    /// recorded now takes its clean twin's thumbnails from `clean_twin`, when there is one.
     fn cycle(
         &mut self,
         simulation: &Simulation,
         setup: &EpisodeSetup,
         frames: (&TopFrame, &BottomFrame),
+        clean_twin: Option<&mut CleanTwin>,
     ) -> Result<Cycle, String>;
 
     /// Computed commands, their tick times and the commands the expert's replaced.
@@ -347,7 +349,8 @@ fn play(
             break Outcome::ControllerLost;
         }
         if motion_cycle {
-            match cycles.cycle(&simulation, setup, (&top, &bottom)) {
+            let clean_twin = renderer.as_deref_mut().and_then(Renderer::clean_twin_mut);
+            match cycles.cycle(&simulation, setup, (&top, &bottom), clean_twin) {
                 Ok(Cycle { command, execute }) => {
                     observe_cycle(observer, &simulation, &command);
                     match execute {
@@ -432,6 +435,7 @@ impl MotionCycles for InProcess<'_, '_> {
         simulation: &Simulation,
         setup: &EpisodeSetup,
         (top, bottom): (&TopFrame, &BottomFrame),
+        clean_twin: Option<&mut CleanTwin>,
     ) -> Result<Cycle, String> {
         self.clock.set(simulation.time());
         let truth = ground_truth(simulation, setup);
@@ -450,6 +454,10 @@ impl MotionCycles for InProcess<'_, '_> {
             self.tick_times.record(elapsed);
             if let Some(recording) = self.recording.as_deref_mut() {
                 let (top_thumbnail, bottom_thumbnail) = self.control.thumbnails();
+                let clean_twin = clean_twin.map(|twin| {
+                    twin.thumbnails()
+                        .unwrap_or((top_thumbnail, bottom_thumbnail))
+                });
                 recording.push(Row {
                     top: top_thumbnail,
                     bottom: bottom_thumbnail,
@@ -462,6 +470,7 @@ impl MotionCycles for InProcess<'_, '_> {
                         .as_ref()
                         .map_or(Phase::Search, |expert| expert.borrow().phase),
                     policy_command: None,
+                    clean_twin,
                 });
             }
         }
@@ -523,6 +532,7 @@ impl MotionCycles for Linked<'_, '_> {
         simulation: &Simulation,
         setup: &EpisodeSetup,
         frames: (&TopFrame, &BottomFrame),
+        clean_twin: Option<&mut CleanTwin>,
     ) -> Result<Cycle, String> {
         let tick = LockStepTick {
             episode: setup.seed,
@@ -544,7 +554,7 @@ impl MotionCycles for Linked<'_, '_> {
             Some(labelling) => {
                 let truth = ground_truth(simulation, setup);
                 labelling
-                    .follow(&command, truth, truth.time_s, frames)
+                    .follow(&command, truth, truth.time_s, frames, clean_twin)
                     .map(|(speed, executed)| {
                         self.expert_executed += u64::from(executed);
                         speed
@@ -583,7 +593,7 @@ fn observe_cycle(
 fn take_frame(
     simulation: &Simulation,
     camera: CameraPosition,
-    renderer: Option<&mut Renderer>,
+    mut renderer: Option<&mut Renderer>,
     top: &mut TopFrame,
     bottom: &mut BottomFrame,
 ) -> Result<(), RenderError> {
@@ -592,17 +602,20 @@ fn take_frame(
     let scene = simulation.scene();
     match camera {
         CameraPosition::Top => {
-            if let Some(renderer) = renderer {
+            if let Some(renderer) = renderer.as_deref_mut() {
                 renderer.render(camera, &model, &scene, top)?;
             }
             top.restamp(sequence, time);
         }
         CameraPosition::Bottom => {
-            if let Some(renderer) = renderer {
+            if let Some(renderer) = renderer.as_deref_mut() {
                 renderer.render(camera, &model, &scene, bottom)?;
             }
             bottom.restamp(sequence, time);
         }
+    }
+    if let Some(twin) = renderer.and_then(Renderer::clean_twin_mut) {
+        twin.render(camera, &model, &scene)?;
     }
     Ok(())
 }
@@ -753,6 +766,7 @@ impl Labelling<'_> {
         truth: GroundTruth,
         time_s: f64,
         frames: (&TopFrame, &BottomFrame),
+        clean_twin: Option<&mut CleanTwin>,
     ) -> Result<(SpeedCommand, bool), String> {
         if !command.is_new() {
             // A repeat holds what was executed; a stop (cameras silent) stops.
@@ -776,6 +790,11 @@ impl Labelling<'_> {
             let (top_thumbnail, bottom_thumbnail) = &mut self.thumbnails;
             downscale(top, top_thumbnail);
             downscale(bottom, bottom_thumbnail);
+            let (top_thumbnail, bottom_thumbnail) = (&**top_thumbnail, &**bottom_thumbnail);
+            let clean_twin = clean_twin.map(|twin| {
+                twin.thumbnails()
+                    .unwrap_or((top_thumbnail, bottom_thumbnail))
+            });
             recording.push(Row {
                 top: top_thumbnail,
                 bottom: bottom_thumbnail,
@@ -788,6 +807,7 @@ impl Labelling<'_> {
                     speed: command.speed,
                     expert_executed: executed,
                 }),
+                clean_twin,
             });
         }
         Ok((if executed { expert } else { command.speed }, executed))

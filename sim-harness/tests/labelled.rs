@@ -65,6 +65,15 @@ fn expert() -> Expert {
 /// A labelled episode driven by the walker in a controller thread: its result, its rows
 /// and the hashes of the thumbnails the walker saw.
 fn labelled(seed: u64, beta: f64) -> (EpisodeResult, Rows, Vec<u64>) {
+    labelled_under(&EpisodeSetup::from_seed(seed), beta, &mut renderer())
+}
+
+fn labelled_under(
+    setup: &EpisodeSetup,
+    beta: f64,
+    renderer: &mut Renderer,
+) -> (EpisodeResult, Rows, Vec<u64>) {
+    let seed = setup.seed;
     let seen = Arc::new(Mutex::new(Vec::new()));
     let walker_seen = Arc::clone(&seen);
     let load = move || Ok(Box::new(Walker { seen: walker_seen }) as Box<dyn Policy>);
@@ -73,10 +82,10 @@ fn labelled(seed: u64, beta: f64) -> (EpisodeResult, Rows, Vec<u64>) {
     let mut recording = EpisodeRecording::default();
     let labels = ExpertLabels::new(expert(), beta, seed);
     let result = run_episode(
-        &EpisodeSetup::from_seed(seed),
+        setup,
         &config(),
         Driver::LabelledController(&mut link, Box::new(labels)),
-        Some(&mut renderer()),
+        Some(renderer),
         Some(&mut recording),
     )
     .expect("renders");
@@ -112,7 +121,11 @@ impl Rows {
     }
 
     fn thumbnail_hashes(&self) -> Vec<u64> {
-        let (top, bottom) = (&self.arrays["top"].data, &self.arrays["bottom"].data);
+        self.hashes_of("top", "bottom")
+    }
+
+    fn hashes_of(&self, top: &str, bottom: &str) -> Vec<u64> {
+        let (top, bottom) = (&self.arrays[top].data, &self.arrays[bottom].data);
         (0..self.len())
             .map(|i| {
                 let mut hasher = DefaultHasher::new();
@@ -207,4 +220,66 @@ fn beta_one_replays_the_experts_own_episode_and_the_draws_are_seeded() {
     assert_eq!(once.f32s("robot_pose"), again.f32s("robot_pose"));
     let (alone, _, _) = labelled(seed + 1, 0.0);
     assert_eq!(alone.expert_executed, 0);
+}
+
+/// The expert driving in this process, its rows with their clean twin's thumbnails when the
+/// renderer has one.
+fn demonstrated_under(setup: &EpisodeSetup, renderer: &mut Renderer) -> Rows {
+    let mut recording = EpisodeRecording::default();
+    let result = run_episode(
+        setup,
+        &config(),
+        Driver::Expert(expert()),
+        Some(renderer),
+        Some(&mut recording),
+    )
+    .expect("renders");
+    assert!(result.failure.is_none(), "{:?}", result.failure);
+    Rows::of(&recording, setup.seed)
+}
+
+#[test]
+fn a_clean_twin_holds_what_the_clean_render_shows_of_the_same_states() {
+    // Neither the walker nor the paper's expert reads the images, so an episode under a
+    // camera condition visits the clean episode's states: its twin must be the clean rows.
+    let seed = 31;
+    let conditioned =
+        EpisodeSetup::from_seed(seed).under("contrast:3,noise:2".parse().expect("valid"));
+    let clean = EpisodeSetup::from_seed(seed);
+    let mut twin_renderer = renderer().with_clean_twin().expect("twin");
+
+    let (_, clean_rows, _) = labelled_under(&clean, 0.0, &mut renderer());
+    assert!(
+        !clean_rows.arrays.contains_key("top_clean"),
+        "no twin asked for"
+    );
+    let (_, rows, _) = labelled_under(&conditioned, 0.0, &mut twin_renderer);
+    assert_eq!(
+        rows.hashes_of("top_clean", "bottom_clean"),
+        clean_rows.thumbnail_hashes()
+    );
+    let differing = rows
+        .thumbnail_hashes()
+        .iter()
+        .zip(rows.hashes_of("top_clean", "bottom_clean"))
+        .filter(|(seen, twin)| **seen != *twin)
+        .count();
+    assert_eq!(
+        differing,
+        rows.len(),
+        "the conditioned rows are not their twins"
+    );
+
+    let demonstrated = demonstrated_under(&conditioned, &mut twin_renderer);
+    let clean_demonstrated = demonstrated_under(&clean, &mut renderer());
+    assert_eq!(
+        demonstrated.hashes_of("top_clean", "bottom_clean"),
+        clean_demonstrated.thumbnail_hashes()
+    );
+    // A clean episode is its own twin: its rows are copied, not rendered again.
+    let own = demonstrated_under(&clean, &mut twin_renderer);
+    assert_eq!(
+        own.hashes_of("top_clean", "bottom_clean"),
+        own.thumbnail_hashes()
+    );
 }

@@ -72,6 +72,13 @@ pub struct RecordArgs {
     /// never the unseen venue). Recorded in dataset.json, per episode.
     #[arg(long, visible_alias = "conditions", default_value = "clean")]
     pub(crate) condition: Conditions,
+    /// Also render every frame as the paper's clean render shows the same state (no camera
+    /// effect, light or venue; robots standing about kept) and store its thumbnails beside
+    /// the row's (`top_clean`, `bottom_clean`): a policy trained on clean renders can then
+    /// label conditioned rows from what it would have seen (the trainer's
+    /// `--distill-camera-clean`). Up to twice the rendering time.
+    #[arg(long)]
+    pub(crate) clean_twin: bool,
     #[command(flatten)]
     pub(crate) controller: ControllerOptions,
     #[command(flatten)]
@@ -98,6 +105,9 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         config.world.goal_depth,
         &config.cameras,
     )?;
+    if args.clean_twin {
+        renderer = renderer.with_clean_twin()?;
+    }
     println!("adapter: {}", renderer.adapter());
 
     let progress = episode_progress(todo.len());

@@ -329,11 +329,52 @@ impl EpisodeLook {
     pub fn is_clean(&self) -> bool {
         self.conditions.is_clean()
     }
+
+    /// How the paper's clean render shows the same episode: no camera effect, no light, the
+    /// paper's arena; the robots standing about kept as drawn (they hide the ball, so a
+    /// clean view without them would show what the robot cannot see). A clean-trained policy
+    /// sees a conditioned frame's twin as it learned to (`dribble record --clean-twin`).
+    pub fn clean_twin(&self) -> Self {
+        let mut kept = Conditions::CLEAN;
+        if let Some(severity) = self.conditions.severity(Condition::Robots) {
+            kept.severities[Condition::Robots.index()] = severity.level();
+        }
+        kept.resolve(self.seed)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_clean_twin_keeps_the_robots_and_drops_camera_light_and_venue() {
+        let look: Conditions = "noise:3,light:4,venue:5,robots:3".parse().expect("valid");
+        let look = look.resolve(77);
+        let twin = look.clean_twin();
+        assert_eq!(twin.conditions.to_string(), "robots:3");
+        assert_eq!(twin.seed, 77);
+        assert!(twin.layout.sunlight.is_none());
+        assert_eq!(twin.layout.style, VenueStyle::Standard);
+        let robots = |layout: &VenueLayout| {
+            layout
+                .figures
+                .iter()
+                .filter(|f| matches!(f.kind, venue::FigureKind::Robot))
+                .map(|f| (f.position, f.heading))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(robots(&twin.layout).len(), 4);
+        assert_eq!(robots(&twin.layout), robots(&look.layout));
+        assert_eq!(
+            twin.layout.figures.len(),
+            4,
+            "the venue's people are not kept"
+        );
+        assert_eq!(twin.camera, Conditions::CLEAN.resolve(77).camera);
+        let clean: Conditions = "contrast:3".parse().expect("valid");
+        assert!(clean.resolve(5).clean_twin().is_clean());
+    }
 
     #[test]
     fn text_round_trips_and_is_canonical() {

@@ -11,6 +11,7 @@
 //! On machines without a GPU it runs on lavapipe, Mesa's Vulkan driver on the CPU
 //! (Debian's `mesa-vulkan-drivers`); its output is the same from run to run.
 
+mod clean_twin;
 mod pipelines;
 mod scene;
 mod target;
@@ -29,6 +30,7 @@ use crate::field::FieldGeometry;
 use pipelines::{Pipelines, READ_TWICE};
 use target::{CameraTarget, camera_target};
 
+pub use clean_twin::CleanTwin;
 pub use scene::{Mesh, Vertex, ball_mesh, static_scene, static_scene_in};
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
@@ -104,6 +106,7 @@ pub struct Renderer {
     pipelines: Pipelines,
     field: FieldGeometry,
     goal_depth: f32,
+    cameras: CameraGeometry,
     static_mesh: GpuMesh,
     ball_mesh: GpuMesh,
     models: wgpu::Buffer,
@@ -115,6 +118,8 @@ pub struct Renderer {
     look: EpisodeLook,
     /// Each camera's rotation and time at its previous frame (its angular velocity).
     previous: [Option<(Quat, u64)>; 2],
+    /// Every frame drawn a second time without the episode's conditions, when asked for.
+    clean_twin: Option<Box<CleanTwin>>,
 }
 
 impl std::fmt::Debug for Renderer {
@@ -208,6 +213,7 @@ impl Renderer {
             pipelines,
             field: *field,
             goal_depth,
+            cameras: *cameras,
             static_mesh,
             ball_mesh,
             models,
@@ -217,7 +223,22 @@ impl Renderer {
             targets,
             look: EpisodeLook::clean(),
             previous: [None; 2],
+            clean_twin: None,
         })
+    }
+
+    /// This renderer with a [`CleanTwin`] beside it: a second renderer (on the same kind of
+    /// adapter) that draws every frame again as the paper's clean render shows it. The
+    /// runner records the twin's thumbnails beside each row's; rendering costs up to twice.
+    pub fn with_clean_twin(mut self) -> Result<Self, RenderError> {
+        let twin = Renderer::new(&self.field, self.goal_depth, &self.cameras)?;
+        self.clean_twin = Some(Box::new(CleanTwin::new(twin)));
+        Ok(self)
+    }
+
+    /// The clean twin, when this renderer has one.
+    pub fn clean_twin_mut(&mut self) -> Option<&mut CleanTwin> {
+        self.clean_twin.as_deref_mut()
     }
 
     /// Sets the look of the episode about to start: its venue's mesh (built anew only when it
@@ -263,6 +284,9 @@ impl Renderer {
         }
         self.look = look.clone();
         self.previous = [None; 2];
+        if let Some(twin) = self.clean_twin.as_deref_mut() {
+            twin.begin_episode(look);
+        }
     }
 
     /// The adapter in use, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, llvmpipe ...)".
