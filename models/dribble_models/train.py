@@ -51,6 +51,7 @@ demonstrations and exports a model directory the controller loads.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import math
@@ -448,6 +449,23 @@ def seen_clean(episode: Episode) -> bool:
     return camera_clean(episode) or episode.has_clean_twin
 
 
+def distilled_labels(args: "TrainingConfig", episodes: list[Episode], rows: Rows, device: torch.device | str) -> np.ndarray:
+    """The labels `--distill-from` gives `rows` (made of `episodes`, in order): the
+    distilled model's commands (on clean twins where recorded); with
+    `--distill-camera-clean` only where it sees as it learned to, the teacher's elsewhere."""
+    distilled = distilled_commands(args.distill_from, rows, device, episodes=episodes)
+    if not args.distill_camera_clean:
+        return distilled
+    clean = np.concatenate([np.full(len(e), seen_clean(e)) for e in episodes])
+    twinned = sum(len(e) for e in episodes if e.has_clean_twin and not camera_clean(e))
+    print(
+        f"distilled labels on {int(clean.sum())} of {len(clean)} rows (camera-clean episodes; "
+        f"{twinned} of them conditioned rows labelled from their clean twins)",
+        file=sys.stderr,
+    )
+    return np.where(clean[:, None], distilled, rows.command)
+
+
 def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
     """A seeded random `fraction` of `rows` (indices), in batches."""
     count = max(1, int(round(len(rows) * fraction)))
@@ -545,19 +563,18 @@ class Training:
         if args.distill_from is not None:
             if self.kind != "cnn" or args.modes != 1:
                 raise DatasetError("--distill-from trains a one-output CNN (--kind cnn, --modes 1)")
-            distilled = distilled_commands(args.distill_from, self.rows, self.device, episodes=self.train_episodes)
-            if args.distill_camera_clean:
-                clean = np.concatenate([np.full(len(e), seen_clean(e)) for e in self.train_episodes])
-                twinned = sum(len(e) for e in self.train_episodes if e.has_clean_twin and not camera_clean(e))
-                print(
-                    f"distilled labels on {int(clean.sum())} of {len(clean)} rows (camera-clean episodes; "
-                    f"{twinned} of them conditioned rows labelled from their clean twins)",
-                    file=sys.stderr,
-                )
-                distilled = np.where(clean[:, None], distilled, self.rows.command)
+            distilled = distilled_labels(args, self.train_episodes, self.rows, self.device)
             if args.one_way_detour:
                 distilled = np.where(detour[:, None], self.rows.command, distilled)
             self.rows.command = distilled
+            if args.validate_distilled:
+                # Checkpoints chosen by how near the student comes to the distilled model,
+                # on the held-out episodes, by the same rule as the training rows.
+                labels = distilled_labels(args, self.validation_episodes, Rows.of(self.validation_episodes), self.device)
+                ends = np.cumsum([len(e) for e in self.validation_episodes])
+                self.validation_episodes = [
+                    dataclasses.replace(e, command=labels[end - len(e) : end]) for e, end in zip(self.validation_episodes, ends)
+                ]
         if self.kind == "cnn":
             self.model = CNN(args.filters) if args.modes == 1 else ModalCNN(args.modes, args.filters)
         elif self.kind == "rcnn":
@@ -654,6 +671,7 @@ class Training:
             **({"prune_from": start_sha256(a.prune_from)} if a.prune_from is not None else {}),
             **({"distill_from": start_sha256(a.distill_from)} if a.distill_from is not None else {}),
             **({"distill_camera_clean": True} if a.distill_camera_clean else {}),
+            **({"validate_distilled": True} if a.validate_distilled else {}),
             **({"one_way_detour": True} if a.one_way_detour else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
@@ -943,7 +961,8 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
         parts.append(f"started from {args.prune_from} (sha256 {start_sha256(args.prune_from)[:12]}) pruned to these filters, largest L1 norms kept")
     if args.distill_from is not None:
         rows = "on the rows of camera-clean episodes (clean or robots only) and, where recorded, the clean twins of conditioned rows; the teacher's labels elsewhere" if args.distill_camera_clean else "for each training row (its clean twin where recorded)"
-        parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) {rows}, validated on the teacher's")
+        validated = "validated on them by the same rule" if args.validate_distilled else "validated on the teacher's"
+        parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) {rows}, {validated}")
     if args.one_way_detour:
         parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
     if args.features_from is not None:
@@ -969,6 +988,7 @@ class TrainingConfig:
     prune_from: Path | None = None
     distill_from: Path | None = None
     distill_camera_clean: bool = False
+    validate_distilled: bool = False
     one_way_detour: bool = False
     test_dataset: Path | None = None
     epochs: int = 0
@@ -1017,6 +1037,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--prune-from", type=Path, metavar="MODEL", help="CNN: start from this wider shipped one-network float CNN, each convolution keeping its --filters filters of largest L1 norm (and the next layers the matching channels and columns) instead of random weights")
     parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation stays on the teacher's labels)")
     parser.add_argument("--distill-camera-clean", action="store_true", help="with --distill-from: its commands only where a model trained on clean renders sees as it learned to: the rows of episodes recorded with no camera, light or venue condition (clean, robots), and conditioned rows recorded with a clean twin (`dribble record --clean-twin`: its commands on the twin's thumbnails); the teacher's labels on the rest (a robust student of a clean-trained policy, with --camera-augment)")
+    parser.add_argument("--validate-distilled", action="store_true", help="with --distill-from: the held-out episodes take the distilled labels too (by the same rule as the training rows), so the kept checkpoint is the one nearest the distilled model rather than the teacher")
     parser.add_argument("--one-way-detour", action="store_true", help="where the teacher walks around the ball to get behind it, on the side of the ball-to-goal line it stands on (a side the images often cannot show), label the rows with the same walk around the ball always clockwise; training and validation rows (dribble_models.one_way_detour)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
@@ -1054,6 +1075,8 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--epoch-fraction must be in (0, 1]")
     if args.distill_camera_clean and args.distill_from is None:
         parser.error("--distill-camera-clean says where --distill-from's commands are taken: give --distill-from")
+    if args.validate_distilled and args.distill_from is None:
+        parser.error("--validate-distilled validates on --distill-from's commands: give --distill-from")
     if args.cut_stalls is not None and not args.cut_stalls > 0:
         parser.error("--cut-stalls is a positive number of seconds")
     if args.modes < 1 or (args.modes > 1 and args.kind != "cnn"):

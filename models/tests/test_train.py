@@ -546,3 +546,27 @@ def test_a_folded_start_answers_as_before_on_a_typical_thumbnail(rng):
         after = new.features.top[0](standardised(scaled))[..., 2:-2, 2:-2]
     assert torch.allclose(before, after, atol=1e-4), float((before - after).abs().max())
     assert not torch.allclose(old.features.top[0].weight, new.features.top[0].weight)
+
+
+def test_validating_on_the_distilled_commands_gives_the_held_out_episodes_those_labels(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3], 6, rng, twinned=(3,))
+    index = json.loads((train / "dataset.json").read_text())
+    for entry, conditions in zip(index["episodes"], ["clean", "clean", "contrast:3"]):
+        entry["conditions"] = conditions
+    (train / "dataset.json").write_text(json.dumps(index))
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    big = tmp_path / "big"
+    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    flags = ["--distill-from", str(big), "--distill-camera-clean"]
+    held = ds.load(train).episodes[2]
+    plain = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))
+    np.testing.assert_array_equal(plain.validation_episodes[0].command, held.command)
+    trainer = Training(parse_args([*common, "--out", str(tmp_path / "y"), *flags, "--validate-distilled"]), ds.load(train))
+    net = CNN(PAPER_FILTERS)
+    load_shipped_weights(net, big, "cnn")
+    with torch.no_grad():
+        expected = sent_commands(net.eval()(to_input(held.top_clean), to_input(held.bottom_clean)).numpy())
+    np.testing.assert_allclose(trainer.validation_episodes[0].command, expected, atol=1e-6)
+    assert "validated on them by the same rule" in notes_of(parse_args([*common, "--out", "o", *flags, "--validate-distilled"]))
+    with pytest.raises(SystemExit):
+        parse_args([*common, "--out", "o", "--validate-distilled"])
