@@ -751,10 +751,7 @@ class Training:
                 loss = winner_takes_all_loss(network, top, bottom, target)
             else:
                 loss = nn.functional.mse_loss(network(top, bottom), target)
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            self.optimizer.step()
-            losses.append(loss.item())
+            losses.append(self.optimise(loss))
             bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}", refresh=False)
             bar.update(1)
         return float(np.mean(losses))
@@ -794,10 +791,7 @@ class Training:
             out, (h, c) = model(top, bottom, (h * fresh, c * fresh))
             h, c = h.detach(), c.detach()
             loss = masked_loss(out, target, mask)
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            self.optimizer.step()
-            losses.append(loss.item())
+            losses.append(self.optimise(loss))
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
             bar.update(1)
         return float(np.mean(losses)) if losses else math.nan
@@ -813,7 +807,10 @@ class Training:
         features = features.to(self.device)
         out, (h, c) = model.lstm(features, (h * fresh, c * fresh))
         self.cached_state = (h.detach(), c.detach())
-        loss = masked_loss(model.head(out), target, mask)
+        return self.optimise(masked_loss(model.head(out), target, mask))
+
+    def optimise(self, loss: torch.Tensor) -> float:
+        """One optimiser step on `loss`; its value."""
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()

@@ -70,6 +70,20 @@ def write_dataset(directory: Path, seeds: list[int], rows: int, rng: np.random.G
     return directory
 
 
+def conditioned_data_and_model(tmp_path: Path, rng: np.random.Generator, seeds: list[int], conditions: list[str], twinned: tuple[int, ...] = ()):
+    """A dataset of 6-row episodes recorded under `conditions` (one per seed), the trainer's
+    common arguments for it, and a paper-width model trained on it to distil from."""
+    train = write_dataset(tmp_path / "train", seeds, 6, rng, twinned=twinned)
+    index = json.loads((train / "dataset.json").read_text())
+    for entry, condition in zip(index["episodes"], conditions):
+        entry["conditions"] = condition
+    (train / "dataset.json").write_text(json.dumps(index))
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    big = tmp_path / "big"
+    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    return train, common, big
+
+
 def test_a_missing_or_changed_episode_is_named(tmp_path, rng):
     directory = write_dataset(tmp_path / "data", [1, 2], 5, rng)
     assert ds.load(directory).rows == 10
@@ -324,14 +338,7 @@ def test_a_distilled_cnn_learns_the_shipped_networks_commands_not_the_teachers(t
 
 
 def test_distilling_where_the_camera_is_clean_keeps_the_teachers_labels_elsewhere(tmp_path, rng):
-    train = write_dataset(tmp_path / "train", [1, 2, 3], 6, rng)
-    index = json.loads((train / "dataset.json").read_text())
-    for entry, conditions in zip(index["episodes"], ["robots:2", "contrast:3,robots:1", "clean"]):
-        entry["conditions"] = conditions
-    (train / "dataset.json").write_text(json.dumps(index))
-    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
-    big = tmp_path / "big"
-    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    train, common, big = conditioned_data_and_model(tmp_path, rng, [1, 2, 3], ["robots:2", "contrast:3,robots:1", "clean"])
     flags = ["--distill-from", str(big), "--distill-camera-clean"]
     trainer = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))
     # Seed 1 (robots only) takes the model's commands; seed 2 (contrast) keeps the teacher's;
@@ -352,14 +359,7 @@ def test_distilling_where_the_camera_is_clean_keeps_the_teachers_labels_elsewher
 
 
 def test_conditioned_rows_with_a_clean_twin_take_the_models_commands_on_the_twin(tmp_path, rng):
-    train = write_dataset(tmp_path / "train", [1, 2, 3, 4], 6, rng, twinned=(2,))
-    index = json.loads((train / "dataset.json").read_text())
-    for entry, conditions in zip(index["episodes"], ["clean", "contrast:3", "noise:2", "clean"]):
-        entry["conditions"] = conditions
-    (train / "dataset.json").write_text(json.dumps(index))
-    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
-    big = tmp_path / "big"
-    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    train, common, big = conditioned_data_and_model(tmp_path, rng, [1, 2, 3, 4], ["clean", "contrast:3", "noise:2", "clean"], twinned=(2,))
     flags = ["--distill-from", str(big), "--distill-camera-clean"]
     trainer = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))
     clean, twinned, untwinned = trainer.train_episodes
@@ -549,14 +549,7 @@ def test_a_folded_start_answers_as_before_on_a_typical_thumbnail(rng):
 
 
 def test_validating_on_the_distilled_commands_gives_the_held_out_episodes_those_labels(tmp_path, rng):
-    train = write_dataset(tmp_path / "train", [1, 2, 3], 6, rng, twinned=(3,))
-    index = json.loads((train / "dataset.json").read_text())
-    for entry, conditions in zip(index["episodes"], ["clean", "clean", "contrast:3"]):
-        entry["conditions"] = conditions
-    (train / "dataset.json").write_text(json.dumps(index))
-    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
-    big = tmp_path / "big"
-    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    train, common, big = conditioned_data_and_model(tmp_path, rng, [1, 2, 3], ["clean", "clean", "contrast:3"], twinned=(3,))
     flags = ["--distill-from", str(big), "--distill-camera-clean"]
     held = ds.load(train).episodes[2]
     plain = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))

@@ -433,6 +433,25 @@ impl DatasetIndex {
         }
     }
 
+    /// The index of a recorded dataset that lists at least one episode: what a reader of
+    /// `directory` needs (a missing or empty index is an error that says so).
+    pub fn load_recorded(directory: &Path) -> Result<Self, DatasetError> {
+        let path = directory.join(Self::FILE);
+        let Some(index) = Self::load(directory)? else {
+            return Err(DatasetError::Format {
+                path,
+                message: "no such file: not a dataset (record one with `dribble record`)".into(),
+            });
+        };
+        if index.episodes.is_empty() {
+            return Err(DatasetError::Format {
+                path,
+                message: "lists no episodes".into(),
+            });
+        }
+        Ok(index)
+    }
+
     /// The content hash of the listed episodes, if every one of them has a hash.
     pub fn compute_content_hash(&self) -> Option<String> {
         let mut lines = String::new();

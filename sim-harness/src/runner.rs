@@ -32,6 +32,7 @@ use crate::dataset::{EpisodeRecording, Outcome, PolicyCommand, Row};
 use crate::episode::EpisodeSetup;
 use crate::episode_observer::{EpisodeObserver, NoObserver};
 use crate::expert::{Expert, GroundTruth, Phase};
+use crate::field::FieldGeometry;
 use crate::render::{CleanTwin, RenderError, Renderer};
 use crate::simulation::{STEPS_PER_MOTION_CYCLE, Simulation};
 use crate::visibility::Visibility;
@@ -57,6 +58,13 @@ impl Default for EpisodeConfig {
             cameras: CameraGeometry::nao(),
             control: LoopConfig::default(),
         }
+    }
+}
+
+impl EpisodeConfig {
+    /// A renderer of these episodes' two cameras on the SPL field.
+    pub fn renderer(&self) -> Result<Renderer, RenderError> {
+        Renderer::new(&FieldGeometry::SPL, self.world.goal_depth, &self.cameras)
     }
 }
 
@@ -454,10 +462,6 @@ impl MotionCycles for InProcess<'_, '_> {
             self.tick_times.record(elapsed);
             if let Some(recording) = self.recording.as_deref_mut() {
                 let (top_thumbnail, bottom_thumbnail) = self.control.thumbnails();
-                let clean_twin = clean_twin.map(|twin| {
-                    twin.thumbnails()
-                        .unwrap_or((top_thumbnail, bottom_thumbnail))
-                });
                 recording.push(Row {
                     top: top_thumbnail,
                     bottom: bottom_thumbnail,
@@ -470,7 +474,7 @@ impl MotionCycles for InProcess<'_, '_> {
                         .as_ref()
                         .map_or(Phase::Search, |expert| expert.borrow().phase),
                     policy_command: None,
-                    clean_twin,
+                    clean_twin: twin_thumbnails(clean_twin, (top_thumbnail, bottom_thumbnail)),
                 });
             }
         }
@@ -571,6 +575,15 @@ impl MotionCycles for Linked<'_, '_> {
             self.expert_executed,
         )
     }
+}
+
+/// A row's clean-twin thumbnails, when the renderer has a twin: the twin's, or the row's
+/// `own` where the episode is its own twin.
+fn twin_thumbnails<'a>(
+    twin: Option<&'a mut CleanTwin>,
+    own: (&'a TopThumbnail, &'a BottomThumbnail),
+) -> Option<(&'a TopThumbnail, &'a BottomThumbnail)> {
+    twin.map(|twin| twin.thumbnails().unwrap_or(own))
 }
 
 /// Shows `observer` a motion cycle: the command the motion module got, and the state.
@@ -791,10 +804,6 @@ impl Labelling<'_> {
             downscale(top, top_thumbnail);
             downscale(bottom, bottom_thumbnail);
             let (top_thumbnail, bottom_thumbnail) = (&**top_thumbnail, &**bottom_thumbnail);
-            let clean_twin = clean_twin.map(|twin| {
-                twin.thumbnails()
-                    .unwrap_or((top_thumbnail, bottom_thumbnail))
-            });
             recording.push(Row {
                 top: top_thumbnail,
                 bottom: bottom_thumbnail,
@@ -807,7 +816,7 @@ impl Labelling<'_> {
                     speed: command.speed,
                     expert_executed: executed,
                 }),
-                clean_twin,
+                clean_twin: twin_thumbnails(clean_twin, (top_thumbnail, bottom_thumbnail)),
             });
         }
         Ok((if executed { expert } else { command.speed }, executed))

@@ -72,11 +72,7 @@ pub fn run(args: &GymServerArgs) -> anyhow::Result<()> {
         time_limit_s: args.time_limit,
         ..EpisodeConfig::default()
     };
-    let mut renderer = Renderer::new(
-        &FieldGeometry::SPL,
-        config.world.goal_depth,
-        &config.cameras,
-    )?;
+    let mut renderer = config.renderer()?;
     eprintln!("gym-server: adapter {}", renderer.adapter());
     let input = BufReader::new(std::io::stdin().lock());
     let output = BufWriter::new(std::io::stdout().lock());

@@ -43,13 +43,7 @@ pub struct InspectArgs {
 const SWEEP_DEG: [f32; 10] = [-10.0, -5.0, 0.0, 5.0, 10.0, 15.0, 18.0, 21.0, 25.0, 29.5];
 
 pub fn run(args: &InspectArgs) -> anyhow::Result<()> {
-    let index = DatasetIndex::load(&args.dataset)?
-        .with_context(|| format!("no {} in {}", DatasetIndex::FILE, args.dataset.display()))?;
-    ensure!(
-        !index.episodes.is_empty(),
-        "{} lists no episodes",
-        DatasetIndex::FILE
-    );
+    let index = DatasetIndex::load_recorded(&args.dataset)?;
     let mut outcomes: BTreeMap<&str, usize> = BTreeMap::new();
     let mut histograms = [[0u64; BINS]; 3];
     let mut phases = [0u64; 4];

@@ -14,7 +14,6 @@ use dribble_sim::episode::{EpisodeSetup, reserved_range};
 use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
-use dribble_sim::render::Renderer;
 use dribble_sim::runner::{Driver, EpisodeConfig, ExpertLabels, run_episode_observed};
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
@@ -100,11 +99,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         configuration(args, &config, &expert_config, policy.as_ref())?;
     let mut index = open_index(args, simulator, expert, driver)?;
     let todo = episodes_to_record(args, &index);
-    let mut renderer = Renderer::new(
-        &FieldGeometry::SPL,
-        config.world.goal_depth,
-        &config.cameras,
-    )?;
+    let mut renderer = config.renderer()?;
     if args.clean_twin {
         renderer = renderer.with_clean_twin()?;
     }

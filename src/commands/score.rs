@@ -62,13 +62,7 @@ impl ErrorSum {
 }
 
 pub fn run(args: &ScoreArgs) -> anyhow::Result<()> {
-    let index = DatasetIndex::load(&args.dataset)?
-        .with_context(|| format!("no {} in {}", DatasetIndex::FILE, args.dataset.display()))?;
-    ensure!(
-        !index.episodes.is_empty(),
-        "{} lists no episodes",
-        args.dataset.join(DatasetIndex::FILE).display()
-    );
+    let index = DatasetIndex::load_recorded(&args.dataset)?;
     index.verify(&args.dataset)?;
     let hash = index
         .compute_content_hash()

@@ -178,11 +178,7 @@ pub(crate) fn renderer_for(
     if !(policy || args.render) {
         return Ok(None);
     }
-    let renderer = Renderer::new(
-        &FieldGeometry::SPL,
-        config.world.goal_depth,
-        &config.cameras,
-    )?;
+    let renderer = config.renderer()?;
     println!("adapter: {}", renderer.adapter());
     Ok(Some(renderer))
 }

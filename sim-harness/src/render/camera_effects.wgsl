@@ -1,8 +1,8 @@
-// A camera's own effects on its full-resolution image, then YUYV packing as yuyv.wgsl does:
-// motion blur and rolling-shutter skew from the camera's rotation during the exposure (a
-// pure rotation moves every pixel by a homography, whatever its depth), a softer lens,
-// vignetting, exposure gain, shot and read noise in the raw (linear) signal, the sensor's
-// saturation, white balance gains, the display curve and contrast.
+// A camera's own effects on its full-resolution image, then YUYV packing (`yuyv_pair.wgsl`,
+// put before this file): motion blur and rolling-shutter skew from the camera's rotation
+// during the exposure (a pure rotation moves every pixel by a homography, whatever its
+// depth), a softer lens, vignetting, exposure gain, shot and read noise in the raw (linear)
+// signal, the sensor's saturation, white balance gains, the display curve and contrast.
 
 struct Effects {
     // Exposure gain (linear), contrast, read noise variance, shot noise factor.
@@ -17,9 +17,8 @@ struct Effects {
     seed: vec4<u32>,
 };
 
-// The rendered image in linear light (`linear_light.wgsl` raised it to GAMMA once a texel).
-@group(0) @binding(0) var image: texture_2d<f32>;
-@group(0) @binding(1) var<storage, read_write> packed: array<u32>;
+// `image` (binding 0, `yuyv_pair.wgsl`) is the rendered image in linear light here
+// (`linear_light.wgsl` raised it to GAMMA once a texel).
 // The same buffer twice. As a uniform buffer its values are loaded once for every
 // invocation of a group (a storage buffer's are gathered per invocation), but lavapipe
 // specialises a shader on the uniform values its control flow reads (the samples' count,
@@ -30,10 +29,6 @@ struct Effects {
 
 const GAMMA: f32 = 2.2;
 const TAU: f32 = 6.2831853;
-
-fn to_byte(value: f32) -> u32 {
-    return u32(clamp(round(value * 255.0), 0.0, 255.0));
-}
 
 fn hash(value: u32) -> u32 {
     let state = value * 747796405u + 2891336453u;
@@ -136,19 +131,10 @@ fn processed(x: u32, y: u32) -> vec3<f32> {
 
 @compute @workgroup_size(8, 8, 1)
 fn effects_main(@builtin(global_invocation_id) id: vec3<u32>) {
-    let size = textureDimensions(image);
-    let pairs = size.x / 2u;
-    if (id.x >= pairs || id.y >= size.y) {
+    if (beyond_the_image(id)) {
         return;
     }
     let left = processed(2u * id.x, id.y);
     let right = processed(2u * id.x + 1u, id.y);
-    let luma = vec3<f32>(0.299, 0.587, 0.114);
-    let y0 = dot(left, luma);
-    let y1 = dot(right, luma);
-    let mean = (left + right) * 0.5;
-    let u = dot(mean, vec3<f32>(-0.168736, -0.331264, 0.5)) + 0.5;
-    let v = dot(mean, vec3<f32>(0.5, -0.418688, -0.081312)) + 0.5;
-    packed[id.y * pairs + id.x] =
-        to_byte(y0) | (to_byte(u) << 8u) | (to_byte(y1) << 16u) | (to_byte(v) << 24u);
+    store_pair(id, left, right);
 }

@@ -17,6 +17,7 @@ use crate::conditions::EpisodeLook;
 
 /// A second renderer that draws every frame without the episode's conditions, its newest
 /// frame of each camera and the thumbnails made from them.
+#[derive(Debug)]
 pub struct CleanTwin {
     renderer: Renderer,
     top: Box<TopFrame>,
@@ -25,14 +26,6 @@ pub struct CleanTwin {
     bottom_thumbnail: Box<BottomThumbnail>,
     /// The episode's look is its own twin: nothing to render twice.
     same_as_episode: bool,
-}
-
-impl std::fmt::Debug for CleanTwin {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("CleanTwin")
-            .field("same_as_episode", &self.same_as_episode)
-            .finish_non_exhaustive()
-    }
 }
 
 impl CleanTwin {

@@ -435,19 +435,13 @@ impl Renderer {
             }
         }
         if effects {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("linear light"),
-                timestamp_writes: None,
-            });
+            let mut pass = compute_pass(&mut encoder, "linear light");
             pass.set_pipeline(&self.pipelines.linear);
             pass.set_bind_group(0, &target.linear_group, &[]);
             pass.dispatch_workgroups(target.width.div_ceil(8), target.height.div_ceil(8), 1);
         }
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("pack yuyv"),
-                timestamp_writes: None,
-            });
+            let mut pass = compute_pass(&mut encoder, "pack yuyv");
             if effects {
                 pass.set_pipeline(&self.pipelines.effects);
                 pass.set_bind_group(0, &target.effects_group, &[]);
@@ -489,6 +483,13 @@ impl Renderer {
         target.readback.unmap();
         Ok(())
     }
+}
+
+fn compute_pass<'e>(encoder: &'e mut wgpu::CommandEncoder, label: &str) -> wgpu::ComputePass<'e> {
+    encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(label),
+        timestamp_writes: None,
+    })
 }
 
 fn upload(device: &wgpu::Device, label: &str, mesh: &Mesh) -> GpuMesh {

@@ -70,7 +70,10 @@ impl Pipelines {
         let effects_pipeline = compute_pipeline(
             device,
             "camera effects",
-            include_str!("camera_effects.wgsl"),
+            concat!(
+                include_str!("yuyv_pair.wgsl"),
+                include_str!("camera_effects.wgsl")
+            ),
             "effects_main",
             &effects_layout,
         );
@@ -104,7 +107,7 @@ impl Pipelines {
         let pack_pipeline = compute_pipeline(
             device,
             "yuyv",
-            include_str!("yuyv.wgsl"),
+            concat!(include_str!("yuyv_pair.wgsl"), include_str!("yuyv.wgsl")),
             "pack_main",
             &pack_layout,
         );

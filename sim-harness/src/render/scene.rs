@@ -354,7 +354,8 @@ fn add_arena(mesh: &mut Mesh, cl: f32, cw: f32, layout: &VenueLayout) {
     }
 }
 
-/// A person, a robot or an object standing on the floor.
+/// A person, a robot or an object standing on the floor: boxes turned to its heading, each
+/// placed by its centre (forward and left of the figure's position, height) and half sizes.
 fn add_figure(mesh: &mut Mesh, figure: &StandingFigure) {
     let (sin, cos) = figure.heading.sin_cos();
     let at = |forward: f32, left: f32, z: f32| {
@@ -362,88 +363,39 @@ fn add_figure(mesh: &mut Mesh, figure: &StandingFigure) {
             + Vec3::new(forward * cos - left * sin, forward * sin + left * cos, 0.0)
     };
     let heading = figure.heading;
+    let mut part = |(forward, left, z): (f32, f32, f32), half: [f32; 3], colour: [f32; 3]| {
+        mesh.turned_box(at(forward, left, z), Vec3::from(half), heading, colour);
+    };
+    let (colour, second) = (figure.colour, figure.second_colour);
     match figure.kind {
         FigureKind::Person { height_m: h } => {
             let skin = [0.78, 0.6, 0.48];
             for side in [-1.0, 1.0] {
-                let leg = at(0.0, side * 0.09, 0.235 * h);
-                mesh.turned_box(
-                    leg,
-                    Vec3::new(0.08, 0.07, 0.235 * h),
-                    heading,
-                    figure.second_colour,
+                part(
+                    (0.0, side * 0.09, 0.235 * h),
+                    [0.08, 0.07, 0.235 * h],
+                    second,
                 );
-                let arm = at(0.0, side * 0.25, 0.64 * h);
-                mesh.turned_box(arm, Vec3::new(0.05, 0.05, 0.17 * h), heading, figure.colour);
+                part((0.0, side * 0.25, 0.64 * h), [0.05, 0.05, 0.17 * h], colour);
             }
-            mesh.turned_box(
-                at(0.0, 0.0, 0.645 * h),
-                Vec3::new(0.11, 0.2, 0.175 * h),
-                heading,
-                figure.colour,
-            );
-            mesh.turned_box(
-                at(0.0, 0.0, 0.91 * h),
-                Vec3::new(0.1, 0.085, 0.09 * h),
-                heading,
-                skin,
-            );
+            part((0.0, 0.0, 0.645 * h), [0.11, 0.2, 0.175 * h], colour);
+            part((0.0, 0.0, 0.91 * h), [0.1, 0.085, 0.09 * h], skin);
         }
         FigureKind::Robot => {
             let white = [0.9, 0.9, 0.9];
             let h = ROBOT_HEIGHT_M;
             for side in [-1.0, 1.0] {
-                mesh.turned_box(
-                    at(0.02, side * 0.05, 0.02),
-                    Vec3::new(0.08, 0.045, 0.02),
-                    heading,
-                    white,
-                );
-                mesh.turned_box(
-                    at(0.0, side * 0.05, 0.17),
-                    Vec3::new(0.045, 0.04, 0.13),
-                    heading,
-                    figure.second_colour,
-                );
-                mesh.turned_box(
-                    at(0.0, side * 0.12, 0.36),
-                    Vec3::new(0.035, 0.03, 0.09),
-                    heading,
-                    white,
-                );
+                part((0.02, side * 0.05, 0.02), [0.08, 0.045, 0.02], white);
+                part((0.0, side * 0.05, 0.17), [0.045, 0.04, 0.13], second);
+                part((0.0, side * 0.12, 0.36), [0.035, 0.03, 0.09], white);
             }
-            mesh.turned_box(
-                at(0.0, 0.0, 0.375),
-                Vec3::new(0.06, 0.08, 0.075),
-                heading,
-                white,
-            );
-            mesh.turned_box(
-                at(0.045, 0.0, 0.37),
-                Vec3::new(0.02, 0.07, 0.06),
-                heading,
-                figure.colour,
-            );
-            mesh.turned_box(
-                at(0.0, 0.0, h - 0.065),
-                Vec3::new(0.06, 0.065, 0.065),
-                heading,
-                white,
-            );
-            mesh.turned_box(
-                at(0.055, 0.0, h - 0.06),
-                Vec3::new(0.01, 0.045, 0.02),
-                heading,
-                figure.second_colour,
-            );
+            part((0.0, 0.0, 0.375), [0.06, 0.08, 0.075], white);
+            part((0.045, 0.0, 0.37), [0.02, 0.07, 0.06], colour);
+            part((0.0, 0.0, h - 0.065), [0.06, 0.065, 0.065], white);
+            part((0.055, 0.0, h - 0.06), [0.01, 0.045, 0.02], second);
         }
         FigureKind::Object { size } => {
-            mesh.turned_box(
-                at(0.0, 0.0, size.z / 2.0),
-                size / 2.0,
-                heading,
-                figure.colour,
-            );
+            part((0.0, 0.0, size.z / 2.0), (size / 2.0).to_array(), colour);
         }
     }
 }

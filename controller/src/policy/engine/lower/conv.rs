@@ -5,13 +5,8 @@
 use super::*;
 
 impl Lowerer {
-    pub(super) fn conv(
-        &mut self,
-        node: &pb::NodeProto,
-        attributes: &Attributes<'_>,
-        input: &str,
-        output: &str,
-    ) -> Lowered<()> {
+    pub(super) fn conv(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (node, attributes, input, output) = (op.node, &op.attributes, op.first()?, op.output);
         let (buffer, shape, layout) = self.float_tensor(input, "a convolution")?;
         let weights_name = node
             .input
@@ -95,12 +90,8 @@ impl Lowerer {
         self.define_tensor(output, to, vec![1, oc, out[0], out[1]], Layout::Nhwc)
     }
 
-    pub(super) fn max_pool(
-        &mut self,
-        attributes: &Attributes<'_>,
-        input: &str,
-        output: &str,
-    ) -> Lowered<()> {
+    pub(super) fn max_pool(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (attributes, input, output) = (&op.attributes, op.first()?, op.output);
         let (buffer, shape, layout) = self.float_tensor(input, "pooling")?;
         if layout != Layout::Nhwc {
             return unsupported("pooling a map that no convolution made");

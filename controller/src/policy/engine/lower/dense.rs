@@ -4,12 +4,8 @@
 use super::*;
 
 impl Lowerer {
-    pub(super) fn gemm(
-        &mut self,
-        node: &pb::NodeProto,
-        attributes: &Attributes<'_>,
-        output: &str,
-    ) -> Lowered<()> {
+    pub(super) fn gemm(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (node, attributes, output) = (op.node, &op.attributes, op.output);
         let a = node
             .input
             .first()

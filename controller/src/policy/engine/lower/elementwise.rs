@@ -120,14 +120,9 @@ impl Lowerer {
         )
     }
 
-    pub(super) fn reduce(
-        &mut self,
-        node: &pb::NodeProto,
-        attributes: &Attributes<'_>,
-        input: &str,
-        axes_input: Option<&str>,
-        output: &str,
-    ) -> Lowered<()> {
+    pub(super) fn reduce(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (node, attributes, output) = (op.node, &op.attributes, op.output);
+        let (input, axes_input) = (op.first()?, op.input(1));
         let (buffer, shape) = self.tensor(input)?;
         let rank = shape.len();
         if rank > MAX_RANK {

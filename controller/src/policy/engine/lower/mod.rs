@@ -291,25 +291,13 @@ impl Lowerer {
         };
         match tensor.data_type {
             FLOAT => {
-                if !tensor.raw_data.is_empty() && tensor.raw_data.len() != count * 4 {
-                    return unsupported(format!("{} has a ragged raw_data", tensor.name));
-                }
-                let values: Vec<f32> = if tensor.raw_data.is_empty() {
-                    tensor.float_data.clone()
-                } else {
-                    tensor
-                        .raw_data
-                        .chunks_exact(4)
-                        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                        .collect()
-                };
-                if values.len() != count {
-                    return unsupported(format!(
-                        "{} holds {} numbers for shape {shape:?}",
-                        tensor.name,
-                        values.len()
-                    ));
-                }
+                let values = tensor_numbers(
+                    tensor,
+                    &tensor.float_data,
+                    count,
+                    "numbers",
+                    f32::from_le_bytes,
+                )?;
                 let buffer = self.buffer(values.len())?;
                 self.buffers[buffer] = values;
                 self.fixed[buffer] = true;
@@ -322,27 +310,13 @@ impl Lowerer {
                 })
             }
             INT64 => {
-                if !tensor.raw_data.is_empty() && tensor.raw_data.len() != count * 8 {
-                    return unsupported(format!("{} has a ragged raw_data", tensor.name));
-                }
-                let values: Vec<i64> = if tensor.raw_data.is_empty() {
-                    tensor.int64_data.clone()
-                } else {
-                    tensor
-                        .raw_data
-                        .chunks_exact(8)
-                        .map(|b| {
-                            i64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
-                        })
-                        .collect()
-                };
-                if values.len() != count {
-                    return unsupported(format!(
-                        "{} holds {} integers for shape {shape:?}",
-                        tensor.name,
-                        values.len()
-                    ));
-                }
+                let values = tensor_numbers(
+                    tensor,
+                    &tensor.int64_data,
+                    count,
+                    "integers",
+                    i64::from_le_bytes,
+                )?;
                 Ok(Value::Ints { values, shape })
             }
             other => unsupported(format!("{} has element type {other}", tensor.name)),
@@ -477,19 +451,17 @@ impl Lowerer {
         if !node.domain.is_empty() && node.domain != "ai.onnx" {
             return unsupported(format!("operator domain {}", node.domain));
         }
-        let attributes = Attributes(&node.attribute);
-        let input = |i: usize| {
-            node.input
-                .get(i)
-                .map(String::as_str)
-                .filter(|s| !s.is_empty())
-        };
-        let first = || input(0).ok_or_else(|| Unsupported("no input".into()));
         let output = node
             .output
             .first()
             .map(String::as_str)
             .ok_or_else(|| Unsupported("no output".into()))?;
+        let op = Operation {
+            node,
+            attributes: Attributes(&node.attribute),
+            output,
+        };
+        let (attributes, input, first) = (&op.attributes, |i| op.input(i), || op.first());
         match node.op_type.as_str() {
             "Constant" => {
                 let Some(tensor) = attributes.tensor("value") else {
@@ -506,8 +478,8 @@ impl Lowerer {
                 let value = self.value(first()?)?.clone();
                 self.define(output, value)?;
             }
-            "Conv" => self.conv(node, &attributes, first()?, output)?,
-            "MaxPool" => self.max_pool(&attributes, first()?, output)?,
+            "Conv" => self.conv(&op)?,
+            "MaxPool" => self.max_pool(&op)?,
             "Relu" => self.relu(first()?, output)?,
             "Flatten" => {
                 let (buffer, shape) = self.tensor(first()?)?;
@@ -536,7 +508,7 @@ impl Lowerer {
             }
             "Squeeze" | "Unsqueeze" => {
                 let value = self.standard(first()?)?;
-                let axes = self.axes(&attributes, input(1), 13)?;
+                let axes = self.axes(attributes, input(1), 13)?;
                 let squeeze = node.op_type == "Squeeze";
                 if !squeeze && axes.is_empty() {
                     return unsupported("an Unsqueeze without axes");
@@ -558,17 +530,15 @@ impl Lowerer {
                     }
                 }
             }
-            "Transpose" => self.transpose(&attributes, first()?, output)?,
-            "Gather" => self.gather(&attributes, first()?, input(1), output)?,
-            "Concat" => self.concat(node, &attributes, output)?,
-            "Gemm" => self.gemm(node, &attributes, output)?,
+            "Transpose" => self.transpose(&op)?,
+            "Gather" => self.gather(&op)?,
+            "Concat" => self.concat(&op)?,
+            "Gemm" => self.gemm(&op)?,
             "MatMul" => self.matmul(first()?, input(1), output)?,
             "Add" | "Sub" | "Mul" | "Div" | "Equal" => {
                 self.binary(&node.op_type, first()?, input(1), output)?
             }
-            "ReduceMax" | "ReduceSum" => {
-                self.reduce(node, &attributes, first()?, input(1), output)?
-            }
+            "ReduceMax" | "ReduceSum" => self.reduce(&op)?,
             "Cast" => {
                 if attributes.int("to") != Some(1) {
                     return unsupported("a cast to anything but float");
@@ -580,12 +550,67 @@ impl Lowerer {
                     Value::Ints { .. } => return unsupported("a cast of integers"),
                 }
             }
-            "LSTM" => self.lstm(node, &attributes)?,
-            "QuantizeLinear" => self.quantize_linear(node, &attributes, output)?,
-            "DequantizeLinear" => self.dequantize_linear(node, &attributes, output)?,
+            "LSTM" => self.lstm(&op)?,
+            "QuantizeLinear" => self.quantize_linear(&op)?,
+            "DequantizeLinear" => self.dequantize_linear(&op)?,
             other => return unsupported(format!("the operator {other} is not in the engine")),
         }
         Ok(())
+    }
+}
+
+/// A constant's `count` numbers: its `raw_data` read as little-endian `N`-byte values where
+/// it has any, else its typed field (`what` names them in the error).
+fn tensor_numbers<T: Clone, const N: usize>(
+    tensor: &pb::TensorProto,
+    typed: &[T],
+    count: usize,
+    what: &str,
+    from_le_bytes: fn([u8; N]) -> T,
+) -> Lowered<Vec<T>> {
+    let raw = &tensor.raw_data;
+    if !raw.is_empty() && Some(raw.len()) != count.checked_mul(N) {
+        return unsupported(format!("{} has a ragged raw_data", tensor.name));
+    }
+    let values: Vec<T> = if raw.is_empty() {
+        typed.to_vec()
+    } else {
+        raw.as_chunks::<N>()
+            .0
+            .iter()
+            .map(|b| from_le_bytes(*b))
+            .collect()
+    };
+    if values.len() != count {
+        return unsupported(format!(
+            "{} holds {} {what} for shape {:?}",
+            tensor.name,
+            values.len(),
+            tensor.dims
+        ));
+    }
+    Ok(values)
+}
+
+/// The node being lowered: its inputs by position, its attributes and its (first) output.
+struct Operation<'n> {
+    node: &'n pb::NodeProto,
+    attributes: Attributes<'n>,
+    output: &'n str,
+}
+
+impl<'n> Operation<'n> {
+    /// Input `i`, where the node has it (an empty name is an optional input left out).
+    fn input(&self, i: usize) -> Option<&'n str> {
+        self.node
+            .input
+            .get(i)
+            .map(String::as_str)
+            .filter(|s| !s.is_empty())
+    }
+
+    fn first(&self) -> Lowered<&'n str> {
+        self.input(0).ok_or_else(|| Unsupported("no input".into()))
     }
 }
 

@@ -149,13 +149,9 @@ impl Lowerer {
         Ok(())
     }
 
-    pub(super) fn quantize_linear(
-        &mut self,
-        node: &pb::NodeProto,
-        attributes: &Attributes<'_>,
-        output: &str,
-    ) -> Lowered<()> {
-        let (x, scale_name, zero_name) = quantization_inputs(node, attributes)?;
+    pub(super) fn quantize_linear(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (x, scale_name, zero_name) = quantization_inputs(op.node, &op.attributes)?;
+        let output = op.output;
         let scale = self.single_float(scale_name)?;
         let zero = self
             .uint8_zero(zero_name)
@@ -169,13 +165,9 @@ impl Lowerer {
         Ok(())
     }
 
-    pub(super) fn dequantize_linear(
-        &mut self,
-        node: &pb::NodeProto,
-        attributes: &Attributes<'_>,
-        output: &str,
-    ) -> Lowered<()> {
-        let (q, scale_name, zero_name) = quantization_inputs(node, attributes)?;
+    pub(super) fn dequantize_linear(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (q, scale_name, zero_name) = quantization_inputs(op.node, &op.attributes)?;
+        let output = op.output;
         if let Some((source, grid)) = self.pending.get(q).cloned() {
             let scale = self.single_float(scale_name)?;
             let zero = self.uint8_zero(zero_name);
@@ -195,7 +187,7 @@ impl Lowerer {
         let axis = if scales.len() == 1 && scale_shape.iter().all(|&d| d == 1) {
             None
         } else {
-            let axis = normalise_axis(attributes.int("axis").unwrap_or(1), rank)?;
+            let axis = normalise_axis(op.attributes.int("axis").unwrap_or(1), rank)?;
             // A scalar has no axis to hold several scales.
             if rank == 0 || scale_shape != [codes.shape[axis]] {
                 return unsupported(format!(

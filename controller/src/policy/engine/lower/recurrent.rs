@@ -3,17 +3,9 @@
 use super::*;
 
 impl Lowerer {
-    pub(super) fn lstm(
-        &mut self,
-        node: &pb::NodeProto,
-        attributes: &Attributes<'_>,
-    ) -> Lowered<()> {
-        let input = |i: usize| {
-            node.input
-                .get(i)
-                .map(String::as_str)
-                .filter(|s| !s.is_empty())
-        };
+    pub(super) fn lstm(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (node, attributes) = (op.node, &op.attributes);
+        let input = |i: usize| op.input(i);
         let output = |i: usize| {
             node.output
                 .get(i)

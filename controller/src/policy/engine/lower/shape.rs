@@ -52,12 +52,8 @@ impl Lowerer {
         }
     }
 
-    pub(super) fn transpose(
-        &mut self,
-        attributes: &Attributes<'_>,
-        input: &str,
-        output: &str,
-    ) -> Lowered<()> {
+    pub(super) fn transpose(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (attributes, input, output) = (&op.attributes, op.first()?, op.output);
         let (buffer, shape) = self.tensor(input)?;
         let rank = shape.len();
         let perm: Vec<usize> = match attributes.ints("perm") {
@@ -95,13 +91,9 @@ impl Lowerer {
         self.define_tensor(output, to, transposed, Layout::Standard)
     }
 
-    pub(super) fn gather(
-        &mut self,
-        attributes: &Attributes<'_>,
-        input: &str,
-        indices: Option<&str>,
-        output: &str,
-    ) -> Lowered<()> {
+    pub(super) fn gather(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (attributes, input, output) = (&op.attributes, op.first()?, op.output);
+        let indices = op.input(1);
         let (buffer, shape) = self.tensor(input)?;
         let indices_name = indices.ok_or_else(|| Unsupported("no indices".into()))?;
         let Value::Ints {
@@ -126,14 +118,7 @@ impl Lowerer {
         let mut gathered: Vec<usize> = shape[..axis].to_vec();
         gathered.extend(&index_shape);
         gathered.extend(&shape[axis + 1..]);
-        let outer: usize = shape[..axis].iter().product();
-        let inner: usize = shape[axis + 1..].iter().product();
-        if outer
-            .checked_mul(picked.len())
-            .is_none_or(|slices| slices > 4096)
-        {
-            return unsupported("a gather of more than 4096 slices");
-        }
+        let (outer, inner) = copied_slices(&shape, axis, picked.len(), "a gather")?;
         if gathered.len() > MAX_RANK {
             return unsupported(format!("a gather into rank {}", gathered.len()));
         }
@@ -152,12 +137,8 @@ impl Lowerer {
         self.define_tensor(output, to, gathered, Layout::Standard)
     }
 
-    pub(super) fn concat(
-        &mut self,
-        node: &pb::NodeProto,
-        attributes: &Attributes<'_>,
-        output: &str,
-    ) -> Lowered<()> {
+    pub(super) fn concat(&mut self, op: &Operation<'_>) -> Lowered<()> {
+        let (node, attributes, output) = (op.node, &op.attributes, op.output);
         let parts = node
             .input
             .iter()
@@ -184,14 +165,7 @@ impl Lowerer {
                 .checked_add(shape[axis])
                 .ok_or_else(|| Unsupported("a concatenation too long".into()))?;
         }
-        let outer: usize = first[..axis].iter().product();
-        let inner: usize = first[axis + 1..].iter().product();
-        if outer
-            .checked_mul(parts.len())
-            .is_none_or(|slices| slices > 4096)
-        {
-            return unsupported("a concatenation of more than 4096 slices");
-        }
+        let (outer, inner) = copied_slices(first, axis, parts.len(), "a concatenation")?;
         let to = self.buffer(elements(&joined)?)?;
         let row = joined[axis] * inner;
         for o in 0..outer {
@@ -210,4 +184,21 @@ impl Lowerer {
         }
         self.define_tensor(output, to, joined, Layout::Standard)
     }
+}
+
+/// The slices a copy along `axis` of `shape` moves, `count` of them per outer index: the
+/// outer count and each slice's length. More than 4096 copy steps are refused (`what`
+/// names the operation).
+fn copied_slices(
+    shape: &[usize],
+    axis: usize,
+    count: usize,
+    what: &str,
+) -> Lowered<(usize, usize)> {
+    let outer: usize = shape[..axis].iter().product();
+    let inner: usize = shape[axis + 1..].iter().product();
+    if outer.checked_mul(count).is_none_or(|slices| slices > 4096) {
+        return unsupported(format!("{what} of more than 4096 slices"));
+    }
+    Ok((outer, inner))
 }
