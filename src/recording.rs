@@ -70,7 +70,8 @@ pub(crate) fn configuration(
     if args.clean_twin {
         // Named only when on, so that datasets recorded before it resume as they were; a
         // resumed run must repeat it (every episode has the twin's thumbnails, or none).
-        simulator["clean_twin"] = serde_json::Value::Bool(true);
+        simulator["clean_twin"] =
+            serde_json::json!("no camera effect or light; venue and robots kept");
     }
     let expert = serde_json::json!(format!("{expert_config:?}"));
     let driver = policy.map(|(path, manifest)| {

@@ -71,11 +71,11 @@ pub struct RecordArgs {
     /// never the unseen venue). Recorded in dataset.json, per episode.
     #[arg(long, visible_alias = "conditions", default_value = "clean")]
     pub(crate) condition: Conditions,
-    /// Also render every frame as the paper's clean render shows the same state (no camera
-    /// effect, light or venue; robots standing about kept) and store its thumbnails beside
-    /// the row's (`top_clean`, `bottom_clean`): a policy trained on clean renders can then
-    /// label conditioned rows from what it would have seen (the trainer's
-    /// `--distill-camera-clean`). Up to twice the rendering time.
+    /// Also render every frame as a clean camera in clean light would show the same scene (no
+    /// camera effect, no light condition; the venue and the robots standing about kept) and
+    /// store its thumbnails beside the row's (`top_clean`, `bottom_clean`): a policy trained
+    /// on clean renders can then label conditioned rows from what it would have seen (the
+    /// trainer's `--distill-camera-clean`). Up to twice the rendering time.
     #[arg(long)]
     pub(crate) clean_twin: bool,
     #[command(flatten)]

@@ -1,12 +1,12 @@
-//! The clean twin of a conditioned episode: each frame rendered a second time as the paper's
-//! clean render shows the same state ([`EpisodeLook::clean_twin`]: no camera effect, no
-//! light, the paper's arena, the robots standing about kept), and made into thumbnails by
-//! the robot's own code. A policy trained on clean renders sees a conditioned row's twin as
+//! The clean twin of a conditioned episode: each frame rendered a second time as a clean
+//! camera in clean light shows the same scene ([`EpisodeLook::clean_twin`]: no camera effect,
+//! no light condition; the venue and the robots standing about kept), and made into
+//! thumbnails by the robot's own code. A policy trained on clean renders sees a conditioned row's twin as
 //! it learned to, so its command there can label the row (`dribble record --clean-twin`,
 //! the trainer's `--distill-camera-clean`).
 //!
-//! Where the episode's look is its own clean twin (a clean episode, or robots only) nothing
-//! is rendered twice: the twin's thumbnails are then the row's own.
+//! Where the episode's look is its own clean twin (clean, or only venue and robots) nothing is
+//! rendered twice: the twin's thumbnails are then the row's own.
 
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::{BottomFrame, BottomThumbnail, CameraPosition, TopFrame, TopThumbnail};

@@ -228,7 +228,7 @@ impl Renderer {
     }
 
     /// This renderer with a [`CleanTwin`] beside it: a second renderer (on the same kind of
-    /// adapter) that draws every frame again as the paper's clean render shows it. The
+    /// adapter) that draws every frame again without camera effects or light. The
     /// runner records the twin's thumbnails beside each row's; rendering costs up to twice.
     pub fn with_clean_twin(mut self) -> Result<Self, RenderError> {
         let twin = Renderer::new(&self.field, self.goal_depth, &self.cameras)?;
