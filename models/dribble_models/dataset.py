@@ -38,8 +38,8 @@ class Episode:
     # The conditions it was recorded under as `dribble record` names them ("clean",
     # "noise:3,robots:2"); None where dataset.json predates conditions.
     conditions: str | None = None
-    # Recorded with `dribble record --clean-twin`: the thumbnails of the same frames on the
-    # paper's clean render (no camera effect, light or venue; robots kept).
+    # Recorded with `dribble record --clean-twin`: the thumbnails of the same frames without
+    # camera effects and light (the venue and the robots kept).
     top_clean: np.ndarray | None = None  # u8 [T, 120, 160]
     bottom_clean: np.ndarray | None = None  # u8 [T, 60, 80]
 

@@ -54,7 +54,7 @@ pub struct EpisodeRecording {
     policy_command: Vec<f32>,
     expert_executed: Vec<u8>,
     /// Rows of an episode recorded with a clean twin only: the thumbnails of the same frames
-    /// on the paper's clean render.
+    /// without camera effects and light.
     top_clean: Vec<u8>,
     bottom_clean: Vec<u8>,
 }
@@ -81,7 +81,7 @@ pub struct Row<'a> {
     /// the expert's label for this state. Every row of an episode has one, or none does.
     pub policy_command: Option<PolicyCommand>,
     /// In an episode recorded with a clean twin (`render::CleanTwin`): the thumbnails of the
-    /// same frames on the paper's clean render. Every row of an episode has them, or none.
+    /// same frames without camera effects and light. Every row of an episode has them, or none.
     pub clean_twin: Option<(&'a TopThumbnail, &'a BottomThumbnail)>,
 }
 

@@ -1,12 +1,12 @@
 //! The clean twin of a conditioned episode: each frame rendered a second time as a clean
 //! camera in clean light shows the same scene ([`EpisodeLook::clean_twin`]: no camera effect,
 //! no light condition; the venue and the robots standing about kept), and made into
-//! thumbnails by the robot's own code. A policy trained on clean renders sees a conditioned row's twin as
-//! it learned to, so its command there can label the row (`dribble record --clean-twin`,
-//! the trainer's `--distill-camera-clean`).
+//! thumbnails by the robot's own code. A policy trained on clean renders sees a conditioned
+//! row's twin as it learned to, so its command there can label the row (`dribble record
+//! --clean-twin`, the trainer's `--distill-camera-clean`).
 //!
-//! Where the episode's look is its own clean twin (clean, or only venue and robots) nothing is
-//! rendered twice: the twin's thumbnails are then the row's own.
+//! Where the episode's look is its own clean twin (clean, or only venue and robots) nothing
+//! is rendered twice: the twin's thumbnails are then the row's own.
 
 use dribble_controller::thumbnail::downscale;
 use dribble_controller::{BottomFrame, BottomThumbnail, CameraPosition, TopFrame, TopThumbnail};
@@ -15,8 +15,8 @@ use super::{RenderError, Renderer, SceneState};
 use crate::camera_model::CameraModel;
 use crate::conditions::EpisodeLook;
 
-/// A second renderer that draws every frame without the episode's conditions, its newest
-/// frame of each camera and the thumbnails made from them.
+/// A second renderer that draws every frame without the episode's camera effects and light,
+/// its newest frame of each camera and the thumbnails made from them.
 #[derive(Debug)]
 pub struct CleanTwin {
     renderer: Renderer,
@@ -46,8 +46,8 @@ impl CleanTwin {
         self.renderer.begin_episode(&twin);
     }
 
-    /// Renders what `camera` would see of `scene` on the clean render (nothing when the
-    /// episode is its own twin).
+    /// Renders what `camera` would see of `scene` without camera effects and light (nothing
+    /// when the episode is its own twin).
     pub fn render(
         &mut self,
         position: CameraPosition,
