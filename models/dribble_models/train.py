@@ -392,11 +392,11 @@ class Rows:
         )
 
 
-def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str = "cpu", chunk: int = 512, episodes: list[Episode] | None = None) -> np.ndarray:
-    """The commands the shipped float CNN at `model_path` sends for each of `rows`' images:
-    the labels of `--distill-from`. Given the `episodes` the rows were made of, in order, an
-    episode's rows that have a clean twin (`dribble record --clean-twin`) are shown their
-    twin's thumbnails instead: what a clean-trained model sees of the same state."""
+def distilled_commands(model_path: Path, episodes: list[Episode], device: torch.device | str = "cpu", chunk: int = 512) -> list[np.ndarray]:
+    """The commands the shipped float CNN at `model_path` sends for each row of `episodes`,
+    one array an episode: the labels of `--distill-from`. An episode recorded with a clean
+    twin (`dribble record --clean-twin`) is shown its twin's thumbnails: what a
+    clean-trained model sees of the same state."""
     if not is_shipped_model(model_path):
         raise DatasetError(f"--distill-from {model_path}: not a shipped model (a directory with policy.toml)")
     teacher = CNN(PAPER_FILTERS)
@@ -405,28 +405,16 @@ def distilled_commands(model_path: Path, rows: Rows, device: torch.device | str 
     except ShippedWeightsError as error:
         raise DatasetError(f"--distill-from: {error}") from error
     teacher.to(device).eval()
-
-    def commands(top_images: np.ndarray, bottom_images: np.ndarray, out: np.ndarray) -> None:
-        with torch.no_grad():
-            for start in range(0, len(out), chunk):
-                end = min(start + chunk, len(out))
-                top, bottom = to_input(top_images[start:end], device), to_input(bottom_images[start:end], device)
-                out[start:end] = sent_commands(teacher(top, bottom).cpu().numpy())
-
-    out = np.empty_like(rows.command)
-    if episodes is None:
-        commands(rows.top, rows.bottom, out)
-        return out
-    if sum(len(e) for e in episodes) != len(out):
-        raise ValueError("distilled_commands: the episodes do not make up the rows")
-    offset = 0
-    for episode in episodes:
-        end = offset + len(episode)
-        if episode.has_clean_twin:
-            commands(episode.top_clean, episode.bottom_clean, out[offset:end])
-        else:
-            commands(rows.top[offset:end], rows.bottom[offset:end], out[offset:end])
-        offset = end
+    out = []
+    with torch.no_grad():
+        for episode in episodes:
+            tops, bottoms = (episode.top_clean, episode.bottom_clean) if episode.has_clean_twin else (episode.top, episode.bottom)
+            commands = np.empty_like(episode.command)
+            for start in range(0, len(commands), chunk):
+                end = min(start + chunk, len(commands))
+                top, bottom = to_input(tops[start:end], device), to_input(bottoms[start:end], device)
+                commands[start:end] = sent_commands(teacher(top, bottom).cpu().numpy())
+            out.append(commands)
     return out
 
 
@@ -449,21 +437,22 @@ def seen_clean(episode: Episode) -> bool:
     return camera_clean(episode) or episode.has_clean_twin
 
 
-def distilled_labels(args: "TrainingConfig", episodes: list[Episode], rows: Rows, device: torch.device | str) -> np.ndarray:
-    """The labels `--distill-from` gives `rows` (made of `episodes`, in order): the
-    distilled model's commands (on clean twins where recorded); with
-    `--distill-camera-clean` only where it sees as it learned to, the teacher's elsewhere."""
-    distilled = distilled_commands(args.distill_from, rows, device, episodes=episodes)
+def distilled_labels(args: "TrainingConfig", episodes: list[Episode], device: torch.device | str) -> list[np.ndarray]:
+    """The labels `--distill-from` gives `episodes`, one array an episode: the distilled
+    model's commands (on clean twins where recorded); with `--distill-camera-clean` only
+    where it sees as it learned to, the teacher's elsewhere."""
+    distilled = distilled_commands(args.distill_from, episodes, device)
     if not args.distill_camera_clean:
         return distilled
-    clean = np.concatenate([np.full(len(e), seen_clean(e)) for e in episodes])
+    rows = sum(len(e) for e in episodes)
+    clean = sum(len(e) for e in episodes if seen_clean(e))
     twinned = sum(len(e) for e in episodes if e.has_clean_twin and not camera_clean(e))
     print(
-        f"distilled labels on {int(clean.sum())} of {len(clean)} rows (camera-clean episodes; "
+        f"distilled labels on {clean} of {rows} rows (camera-clean episodes; "
         f"{twinned} of them conditioned rows labelled from their clean twins)",
         file=sys.stderr,
     )
-    return np.where(clean[:, None], distilled, rows.command)
+    return [labels if seen_clean(e) else e.command for labels, e in zip(distilled, episodes)]
 
 
 def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
@@ -563,18 +552,15 @@ class Training:
         if args.distill_from is not None:
             if self.kind != "cnn" or args.modes != 1:
                 raise DatasetError("--distill-from trains a one-output CNN (--kind cnn, --modes 1)")
-            distilled = distilled_labels(args, self.train_episodes, self.rows, self.device)
+            distilled = np.concatenate(distilled_labels(args, self.train_episodes, self.device))
             if args.one_way_detour:
                 distilled = np.where(detour[:, None], self.rows.command, distilled)
             self.rows.command = distilled
             if args.validate_distilled:
                 # Checkpoints chosen by how near the student comes to the distilled model,
                 # on the held-out episodes, by the same rule as the training rows.
-                labels = distilled_labels(args, self.validation_episodes, Rows.of(self.validation_episodes), self.device)
-                ends = np.cumsum([len(e) for e in self.validation_episodes])
-                self.validation_episodes = [
-                    dataclasses.replace(e, command=labels[end - len(e) : end]) for e, end in zip(self.validation_episodes, ends)
-                ]
+                labels = distilled_labels(args, self.validation_episodes, self.device)
+                self.validation_episodes = [dataclasses.replace(e, command=l) for e, l in zip(self.validation_episodes, labels)]
         if self.kind == "cnn":
             self.model = CNN(args.filters) if args.modes == 1 else ModalCNN(args.modes, args.filters)
         elif self.kind == "rcnn":
@@ -1032,7 +1018,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--cut-stalls", type=float, metavar="SECONDS", help="in the --add-dataset rounds, drop the rows of a stall (robot and ball still) after its first SECONDS (dribble_models.stalls explains why)")
     parser.add_argument("--init-from", type=Path, help="start from the kept weights of this checkpoint (a .pt this trainer wrote), or from a shipped one-network float model (its directory or policy.toml: dribble_models.shipped_weights), instead of random ones")
     parser.add_argument("--prune-from", type=Path, metavar="MODEL", help="CNN: start from this wider shipped one-network float CNN, each convolution keeping its --filters filters of largest L1 norm (and the next layers the matching channels and columns) instead of random weights")
-    parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation stays on the teacher's labels)")
+    parser.add_argument("--distill-from", type=Path, metavar="MODEL", help="CNN: train on the commands this shipped one-network float CNN sends for each training row's images instead of the teacher's labels (knowledge distillation into a smaller --filters network; validation on the teacher's labels unless --validate-distilled)")
     parser.add_argument("--distill-camera-clean", action="store_true", help="with --distill-from: its commands only where a model trained on clean renders sees as it learned to: the rows of episodes recorded with no camera, light or venue condition (clean, robots), and conditioned rows recorded with a clean twin (`dribble record --clean-twin`: its commands on the twin's thumbnails); the teacher's labels on the rest (a robust student of a clean-trained policy, with --camera-augment)")
     parser.add_argument("--validate-distilled", action="store_true", help="with --distill-from: the held-out episodes take the distilled labels too (by the same rule as the training rows), so the kept checkpoint is the one nearest the distilled model rather than the teacher")
     parser.add_argument("--one-way-detour", action="store_true", help="where the teacher walks around the ball to get behind it, on the side of the ball-to-goal line it stands on (a side the images often cannot show), label the rows with the same walk around the ball always clockwise; training and validation rows (dribble_models.one_way_detour)")
