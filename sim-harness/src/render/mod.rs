@@ -118,7 +118,7 @@ pub struct Renderer {
     look: EpisodeLook,
     /// Each camera's rotation and time at its previous frame (its angular velocity).
     previous: [Option<(Quat, u64)>; 2],
-    /// Every frame drawn a second time without the episode's conditions, when asked for.
+    /// Every frame drawn a second time without camera effects and light, when asked for.
     clean_twin: Option<Box<CleanTwin>>,
 }
 
