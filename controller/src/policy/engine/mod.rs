@@ -527,6 +527,43 @@ mod tests {
         );
     }
 
+    /// The robot package's float student (four channels out of each camera's first layer)
+    /// runs those layers vectorised over pooled pixels on x86-64's vector sets, and gives
+    /// tract's command there.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn a_narrow_first_layer_runs_vectorised_over_pooled_pixels() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../models/policy/cnn-narrower-distilled-more-observable/policy.onnx");
+        let bytes = std::fs::read(&path).expect("the robot package's float student");
+        let proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut &bytes[..])
+            .expect("parses");
+        let network =
+            CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, Isa::Sse42).expect("lowers");
+        let planes: Vec<_> = network
+            .steps
+            .iter()
+            .filter_map(|step| match step {
+                Step::Conv {
+                    pool: Some(pool),
+                    shape,
+                    ..
+                } => Some((shape.in_channels, pool.planes.is_some())),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(planes, [(1, true), (4, false), (1, true), (4, false)]);
+        for isa in Isa::available() {
+            match oracle::compare(&proto, &CNN_INPUTS, isa, 31, 3) {
+                oracle::Comparison::Agree { largest_difference } => {
+                    println!("{isa}: largest difference from tract {largest_difference}");
+                }
+                other => panic!("{isa}: {other:?}"),
+            }
+        }
+    }
+
     #[test]
     fn the_cnn_fixture_counts_the_multiply_adds_of_the_papers_layers() {
         let (path, proto) = cnn_fixture();

@@ -22,6 +22,9 @@ pub(crate) struct ConvPool {
     pub out: [usize; 2],
     /// `kernel[0]` rows of the convolution's output.
     pub scratch: BufferId,
+    /// The padded image's phase planes, where the layer is one the instruction set may run
+    /// vectorised over pooled pixels ([`super::kernels::single_channel_pool`]).
+    pub planes: Option<BufferId>,
 }
 
 /// A convolution and its pool as [`winograd`] computes them: the transformed weights and the
@@ -452,7 +455,11 @@ impl Step {
                 ..
             } => {
                 let mut writes = vec![*out];
-                writes.extend(pool.map(|pool| pool.scratch));
+                writes.extend(
+                    pool.iter()
+                        .flat_map(|pool| [Some(pool.scratch), pool.planes])
+                        .flatten(),
+                );
                 if let Some(winograd) = winograd {
                     writes.extend([winograd.transformed, winograd.products]);
                 }
@@ -843,6 +850,17 @@ fn conv_pool<K: Kernels>(
     buffers: &mut [Vec<f32>],
 ) {
     let mut target = mem::take(&mut buffers[out]);
+    if let Some(planes) = pool.planes {
+        let mut scratch = mem::take(&mut buffers[planes]);
+        let shape = [pool.kernel, pool.stride, pool.out];
+        let done =
+            K::single_channel_conv_pool(layer, shape, &buffers[padded], &mut scratch, &mut target);
+        buffers[planes] = scratch;
+        if done {
+            buffers[out] = target;
+            return;
+        }
+    }
     let mut scratch = mem::take(&mut buffers[pool.scratch]);
     let input = &buffers[padded];
     let ([_, ow], oc) = (layer.shape.out, layer.shape.out_channels);

@@ -21,6 +21,8 @@ pub(crate) mod portable;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 pub(crate) mod simd;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+pub(crate) mod single_channel_pool;
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod window_asm;
 pub(crate) mod winograd;
 
@@ -74,6 +76,21 @@ pub(crate) trait Kernels {
         _relu: bool,
         _transformed: &mut [f32],
         _products: &mut [f32],
+        _out: &mut [f32],
+    ) -> bool {
+        false
+    }
+
+    /// A one-channel image's stride-2 convolution and its 2x2 pool, vectorised over pooled
+    /// pixels ([`single_channel_pool`]), into the pooled map `out` (`pool`: the pool's window,
+    /// stride and output size); `planes` is the kernel's scratch. False, having written
+    /// nothing to `out`, where the set has no such kernel for the layer.
+    #[inline(always)]
+    fn single_channel_conv_pool(
+        _layer: &ConvLayer<'_>,
+        _pool: [[usize; 2]; 3],
+        _padded: &[f32],
+        _planes: &mut [f32],
         _out: &mut [f32],
     ) -> bool {
         false
@@ -145,6 +162,9 @@ impl Kernels for SseKernels {
         // weight broadcast once), the first layer took more instructions, not fewer: SSE's
         // two-operand multiply needs a copy of the input or the weight per channel
         // (callgrind, the top camera's layer on sse4.2: 0.77 M instructions against 0.71 M).
+        // What does pay is the pooled-pixel kernel with the image split into column phases
+        // (no shuffle a tap, one load for every channel): `single_channel_conv_pool`, which
+        // takes those layers before they get here on x86-64.
         #[cfg(target_arch = "x86_64")]
         let done = match (shape.out_channels, ic, shape.kernel[1]) {
             (4, 1, 5) => conv_rows::<Sse, 1, 12, 1, 5>(layer, padded, row, out),
@@ -235,6 +255,22 @@ impl Kernels for SseKernels {
         }
     }
 
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn single_channel_conv_pool(
+        layer: &ConvLayer<'_>,
+        pool: [[usize; 2]; 3],
+        padded: &[f32],
+        planes: &mut [f32],
+        out: &mut [f32],
+    ) -> bool {
+        use self::single_channel_pool::conv_pool;
+        match (layer.shape.out_channels, layer.shape.kernel) {
+            (4, [5, 5]) => conv_pool::<simd::Sse, 4, 5, 5>(layer, pool, padded, planes, out),
+            _ => false,
+        }
+    }
+
     #[inline(always)]
     fn max_pool(
         input: &[f32],
@@ -316,6 +352,22 @@ impl Kernels for AvxKernels {
         };
         if !done {
             Generic::<Fused>::dense(x, weights, bias, y, nonzero);
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn single_channel_conv_pool(
+        layer: &ConvLayer<'_>,
+        pool: [[usize; 2]; 3],
+        padded: &[f32],
+        planes: &mut [f32],
+        out: &mut [f32],
+    ) -> bool {
+        use self::single_channel_pool::conv_pool;
+        match (layer.shape.out_channels, layer.shape.kernel) {
+            (4, [5, 5]) => conv_pool::<simd::Avx, 4, 5, 5>(layer, pool, padded, planes, out),
+            _ => false,
         }
     }
 
@@ -410,6 +462,22 @@ impl Kernels for Avx512Kernels {
         };
         if !done {
             AvxKernels::dense(x, weights, bias, y, nonzero);
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn single_channel_conv_pool(
+        layer: &ConvLayer<'_>,
+        pool: [[usize; 2]; 3],
+        padded: &[f32],
+        planes: &mut [f32],
+        out: &mut [f32],
+    ) -> bool {
+        use self::single_channel_pool::conv_pool;
+        match (layer.shape.out_channels, layer.shape.kernel) {
+            (4, [5, 5]) => conv_pool::<simd::Avx512, 4, 5, 5>(layer, pool, padded, planes, out),
+            _ => false,
         }
     }
 

@@ -10,6 +10,8 @@
 //! stays a `MaxPool` step of its own ([`super::conv`]).
 
 use super::*;
+#[cfg(target_arch = "x86_64")]
+use crate::policy::engine::kernels::single_channel_pool;
 
 /// A max-pool's window, stride and output size, `[[kh, kw], [sh, sw], [oh, ow]]`.
 pub(super) type PoolShape = [[usize; 2]; 3];
@@ -59,6 +61,7 @@ impl Lowerer {
         let scratch = self.buffer(scratch_len)?;
         let fit = self.winograd;
         let mut winograd_buffers = None;
+        let mut planes_len = None;
         if let Step::Conv {
             padded,
             weights,
@@ -75,10 +78,15 @@ impl Lowerer {
                 stride: [strides[0], strides[1]],
                 out,
                 scratch,
+                planes: None,
             });
             let (ic, oc) = (shape.in_channels, shape.out_channels);
             let row = shape.padded_width * ic;
             let padded_rows = self.buffers[*padded].len() / row.max(1);
+            #[cfg(target_arch = "x86_64")]
+            if single_channel_pool::takes(ic, oc, shape.stride, [kernel, strides]) {
+                planes_len = single_channel_pool::planes_len(padded_rows, shape.padded_width);
+            }
             let layer = fit.filter(|fit| fit.takes(ic, oc)).and_then(|_| {
                 winograd::Layer::new(
                     [shape.kernel, shape.stride],
@@ -103,6 +111,15 @@ impl Lowerer {
                     products: 0,
                 });
                 winograd_buffers = Some(layer.scratch());
+            }
+        }
+        if let Some(len) = planes_len {
+            let planes = self.buffer(len)?;
+            if let Step::Conv {
+                pool: Some(pool), ..
+            } = &mut self.steps[index]
+            {
+                pool.planes = Some(planes);
             }
         }
         if let Some([transformed_len, products_len]) = winograd_buffers {
