@@ -871,6 +871,44 @@ mod tests {
             .collect()
     }
 
+    /// The robot package's int8 network (four channels out of each camera's first layer):
+    /// those layers run over pooled pixels on x86-64 and give the window kernels' numbers bit
+    /// for bit.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_cameras_int8_layers_over_pooled_pixels_give_the_window_kernels_numbers_bit_for_bit() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../models/policy/cnn-narrower-distilled-more-observable-int8/policy.onnx");
+        let bytes = std::fs::read(&path).expect("the robot package's network");
+        let proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut &bytes[..])
+            .expect("parses");
+        let mut rng = 0x9e37_79b9;
+        let inputs: Vec<Vec<f32>> = (0..3).map(|_| random_thumbnails(&mut rng)).collect();
+        for isa in Isa::available().filter(|isa| *isa >= Isa::Ssse3) {
+            let mut pooled =
+                CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, isa).expect("lowers");
+            let mut windows =
+                CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, isa).expect("lowers");
+            let mut taken = 0;
+            for step in &mut windows.steps {
+                if let Step::QuantizedConv(conv) = step
+                    && conv.pooled_pixels.take().is_some()
+                {
+                    taken += 1;
+                }
+            }
+            assert_eq!(taken, 2, "{isa}: both cameras' first layers");
+            for thumbnails in &inputs {
+                assert_eq!(
+                    output_bits(&mut pooled, thumbnails, &["command"]),
+                    output_bits(&mut windows, thumbnails, &["command"]),
+                    "{isa}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn an_int8_cnn_gives_onnxruntimes_commands_on_its_reference_thumbnails() {
         let (path, proto) = fixture("cnn-int8");

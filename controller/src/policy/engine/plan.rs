@@ -5,6 +5,8 @@
 
 use core::mem;
 
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+use super::kernels::int8::PooledPixelWeights;
 use super::kernels::int8::{Int8Kernel, QuadPanels, Window, ZeroGroups, code_run};
 use super::kernels::winograd;
 use super::kernels::{Kernels, portable};
@@ -137,6 +139,10 @@ pub(crate) struct QuantizedConv {
     /// NHWC floats: the pooled map where `pool` is set, else the convolution's.
     pub out: BufferId,
     pub pool: Option<QuantizedPool>,
+    /// The weights laid out for the kernel that computes a one-channel layer's pool cells
+    /// over pooled pixels, where the layer is that kernel's and it runs on this build.
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    pub pooled_pixels: Option<PooledPixelWeights>,
 }
 
 /// A max-pool folded into the int8 convolution before it. Each pooled output is the epilogue
@@ -689,6 +695,8 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
         sums,
         out,
         pool,
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        pooled_pixels,
     } = conv;
     let (h, w, c) = (*h, *w, *c);
     let map = &buffers[*from];
@@ -732,6 +740,19 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
             let cell_len = *kh * *kw * len;
             let rows = target.chunks_exact_mut(*pw * outputs).take(*ph);
             for (cy, values) in rows.enumerate() {
+                #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+                if let Some(weights) = pooled_pixels
+                    && kernel.pooled_pixel_row(
+                        weights,
+                        codes,
+                        [[*kh, *kw], [*sh, *sw], [*ph, *pw]],
+                        cy,
+                        sums,
+                    )
+                {
+                    epilogue.apply(&sums[..*pw * outputs], values);
+                    continue;
+                }
                 window.gather_cells(codes, [cy * *sh, 0], [*kh, *kw], [*pw, *sw], windows);
                 kernel.largest(
                     &windows[..*pw * cell_len],

@@ -103,6 +103,42 @@ impl Int8Kernel {
         }
     }
 
+    /// The pooled sums of row `py` of a one-channel layer's 2x2 pool (`pool`: window,
+    /// stride, pooled size), `sums[q * 4 + o]`, by [`super::pooled_pixels`] from the code map
+    /// `codes`, where this kernel has it (SSSE3 and up, on x86-64) and the layer and pool are
+    /// its; false, nothing written, where not. The same exact sums as [`Self::largest`] on
+    /// the pool cells' windows.
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    #[inline]
+    pub(crate) fn pooled_pixel_row(
+        self,
+        weights: &super::PooledPixelWeights,
+        codes: &[u8],
+        pool: [[usize; 2]; 3],
+        py: usize,
+        sums: &mut [i32],
+    ) -> bool {
+        use super::pooled_pixels::{OUTPUTS, pooled_row_sse41, pooled_row_ssse3};
+        let [_, _, [ph, pw]] = pool;
+        if !cfg!(target_arch = "x86_64")
+            || py >= ph
+            || sums.len() < pw * OUTPUTS
+            || !weights.takes_pool(pool, codes.len())
+        {
+            return false;
+        }
+        match self.0 {
+            // SAFETY: a `Kind::Ssse3` is made only where SSSE3 was detected; the shapes
+            // checked above (`takes_pool`, the row, the sums).
+            Kind::Ssse3 => unsafe { pooled_row_ssse3(weights, codes, py, pw, sums) },
+            // SAFETY: a `Kind::Sse41` or `Kind::Avx2` only where SSE4.1 was detected too (every
+            // AVX2 CPU has it); shapes as above.
+            Kind::Sse41 | Kind::Avx2 => unsafe { pooled_row_sse41(weights, codes, py, pw, sums) },
+            Kind::Portable => return false,
+        }
+        true
+    }
+
     /// `acc[o] = max over rows r of (W x_r)[o]` in exact integers for each cell of `acc`,
     /// `x` holding each cell's whole rows of [`QuadPanels::padded_inputs`] bytes one after
     /// the other ([`u8s8_max_product_scalar`]); `weights` laid out for this kernel

@@ -33,6 +33,7 @@
 //!
 //! Files: [`panels`] (the weights' layout), [`reference`] (the portable kernel the vector
 //! ones equal), [`ssse3`] (both Naos' kernels, in assembly), [`avx2`] (the host's),
+//! [`pooled_pixels`] (the cameras' one-channel first layers, vectorised over pooled pixels),
 //! [`dispatch`] (which kernel a CPU gets), [`quantize`] (floats to codes), [`window`]
 //! (a convolution's windows copied out of the code map), and the tests beside them.
 // The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
@@ -41,6 +42,8 @@
 mod avx2;
 mod dispatch;
 mod panels;
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+mod pooled_pixels;
 mod quantize;
 mod reference;
 mod ssse3;
@@ -51,6 +54,8 @@ mod tests;
 
 pub(crate) use dispatch::{Int8Kernel, ZeroGroups};
 pub(crate) use panels::QuadPanels;
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+pub(crate) use pooled_pixels::PooledPixelWeights;
 pub(crate) use quantize::code_run;
 pub(crate) use window::Window;
 
