@@ -9,7 +9,7 @@ use core::mem;
 use super::kernels::int8::PooledPixelWeights;
 use super::kernels::int8::{Int8Kernel, QuadPanels, Window, ZeroGroups, code_run};
 use super::kernels::winograd;
-use super::kernels::{Kernels, portable};
+use super::kernels::{Kernels, PooledConv, portable};
 use super::layout::{AlignedWeights, BufferId, ConvLayer, ConvShape, DenseWeights, Grid, Strided};
 
 /// A max-pool folded into the convolution before it: the convolution's rows under one row
@@ -873,9 +873,13 @@ fn conv_pool<K: Kernels>(
     let mut target = mem::take(&mut buffers[out]);
     if let Some(planes) = pool.planes {
         let mut scratch = mem::take(&mut buffers[planes]);
-        let shape = [pool.kernel, pool.stride, pool.out];
-        let done =
-            K::single_channel_conv_pool(layer, shape, &buffers[padded], &mut scratch, &mut target);
+        let conv = PooledConv {
+            pool: [pool.kernel, pool.stride, pool.out],
+            padded: &buffers[padded],
+            planes: &mut scratch,
+            out: &mut target,
+        };
+        let done = K::single_channel_conv_pool(layer, conv);
         buffers[planes] = scratch;
         if done {
             buffers[out] = target;

@@ -20,7 +20,7 @@ pub(crate) mod int8;
 pub(crate) mod portable;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 pub(crate) mod simd;
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[cfg(target_arch = "x86_64")]
 pub(crate) mod single_channel_pool;
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod window_asm;
@@ -57,6 +57,16 @@ impl MulAdd for Separate {
     }
 }
 
+/// A convolution's pool as [`Kernels::single_channel_conv_pool`] computes it: the pool's
+/// window, stride and pooled size, the padded image, the kernel's scratch, the pooled map.
+#[derive(Debug)]
+pub(crate) struct PooledConv<'a> {
+    pub pool: [[usize; 2]; 3],
+    pub padded: &'a [f32],
+    pub planes: &'a mut [f32],
+    pub out: &'a mut [f32],
+}
+
 /// The two hot kernels, as an instruction set provides them.
 pub(crate) trait Kernels {
     /// Output rows `first_row..` of a convolution, as many as `out` holds.
@@ -82,17 +92,10 @@ pub(crate) trait Kernels {
     }
 
     /// A one-channel image's stride-2 convolution and its 2x2 pool, vectorised over pooled
-    /// pixels ([`single_channel_pool`]), into the pooled map `out` (`pool`: the pool's window,
-    /// stride and output size); `planes` is the kernel's scratch. False, having written
-    /// nothing to `out`, where the set has no such kernel for the layer.
+    /// pixels ([`single_channel_pool`]), into the pooled map of `conv`. False, having
+    /// written nothing to it, where the set has no such kernel for the layer.
     #[inline(always)]
-    fn single_channel_conv_pool(
-        _layer: &ConvLayer<'_>,
-        _pool: [[usize; 2]; 3],
-        _padded: &[f32],
-        _planes: &mut [f32],
-        _out: &mut [f32],
-    ) -> bool {
+    fn single_channel_conv_pool(_layer: &ConvLayer<'_>, _conv: PooledConv<'_>) -> bool {
         false
     }
 
@@ -257,18 +260,8 @@ impl Kernels for SseKernels {
 
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn single_channel_conv_pool(
-        layer: &ConvLayer<'_>,
-        pool: [[usize; 2]; 3],
-        padded: &[f32],
-        planes: &mut [f32],
-        out: &mut [f32],
-    ) -> bool {
-        use self::single_channel_pool::conv_pool;
-        match (layer.shape.out_channels, layer.shape.kernel) {
-            (4, [5, 5]) => conv_pool::<simd::Sse, 4, 5, 5>(layer, pool, padded, planes, out),
-            _ => false,
-        }
+    fn single_channel_conv_pool(layer: &ConvLayer<'_>, conv: PooledConv<'_>) -> bool {
+        single_channel_pool::conv_pool_of_layer::<simd::Sse>(layer, conv)
     }
 
     #[inline(always)]
@@ -357,18 +350,8 @@ impl Kernels for AvxKernels {
 
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn single_channel_conv_pool(
-        layer: &ConvLayer<'_>,
-        pool: [[usize; 2]; 3],
-        padded: &[f32],
-        planes: &mut [f32],
-        out: &mut [f32],
-    ) -> bool {
-        use self::single_channel_pool::conv_pool;
-        match (layer.shape.out_channels, layer.shape.kernel) {
-            (4, [5, 5]) => conv_pool::<simd::Avx, 4, 5, 5>(layer, pool, padded, planes, out),
-            _ => false,
-        }
+    fn single_channel_conv_pool(layer: &ConvLayer<'_>, conv: PooledConv<'_>) -> bool {
+        single_channel_pool::conv_pool_of_layer::<simd::Avx>(layer, conv)
     }
 
     #[inline(always)]
@@ -467,18 +450,8 @@ impl Kernels for Avx512Kernels {
 
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn single_channel_conv_pool(
-        layer: &ConvLayer<'_>,
-        pool: [[usize; 2]; 3],
-        padded: &[f32],
-        planes: &mut [f32],
-        out: &mut [f32],
-    ) -> bool {
-        use self::single_channel_pool::conv_pool;
-        match (layer.shape.out_channels, layer.shape.kernel) {
-            (4, [5, 5]) => conv_pool::<simd::Avx512, 4, 5, 5>(layer, pool, padded, planes, out),
-            _ => false,
-        }
+    fn single_channel_conv_pool(layer: &ConvLayer<'_>, conv: PooledConv<'_>) -> bool {
+        single_channel_pool::conv_pool_of_layer::<simd::Avx512>(layer, conv)
     }
 
     #[inline(always)]

@@ -26,6 +26,7 @@
 //! (within the engine's parity tolerance against tract, as every float kernel is).
 #![allow(unsafe_code)]
 
+use super::PooledConv;
 use super::simd::Vector;
 use crate::policy::engine::layout::ConvLayer;
 
@@ -92,6 +93,16 @@ fn split_phases(padded: &[f32], rows: usize, width: usize, planes: &mut [f32]) {
     }
 }
 
+/// [`conv_pool`] with `V`'s vectors for the layers it is compiled for (four outputs, a 5x5
+/// kernel); false, nothing written, for any other.
+#[inline(always)]
+pub(crate) fn conv_pool_of_layer<V: Vector>(layer: &ConvLayer<'_>, conv: PooledConv<'_>) -> bool {
+    match (layer.shape.out_channels, layer.shape.kernel) {
+        (4, [5, 5]) => conv_pool::<V, 4, 5, 5>(layer, conv),
+        _ => false,
+    }
+}
+
 /// The pooled map `out` (`[pool_out[0]][pool_out[1]][OC]`) of a one-channel image's
 /// stride-2 `KH`x`KW` convolution and its 2x2 pool, with `V`'s vectors; `planes` is scratch
 /// of [`planes_len`] floats. False, having written nothing to `out`, where the shapes are not
@@ -100,17 +111,15 @@ fn split_phases(padded: &[f32], rows: usize, width: usize, planes: &mut [f32]) {
 #[inline(always)]
 pub(crate) fn conv_pool<V: Vector, const OC: usize, const KH: usize, const KW: usize>(
     layer: &ConvLayer<'_>,
-    pool: [[usize; 2]; 3],
-    padded: &[f32],
-    planes: &mut [f32],
-    out: &mut [f32],
+    conv: PooledConv<'_>,
 ) -> bool {
-    let ConvLayer {
-        shape,
-        weights,
-        bias,
-        relu,
-    } = *layer;
+    let (shape, weights, bias) = (layer.shape, layer.weights, layer.bias);
+    let PooledConv {
+        pool,
+        padded,
+        planes,
+        out,
+    } = conv;
     let [pool_kernel, pool_stride, [ph, pw]] = pool;
     let lanes = V::LANES;
     let width = shape.padded_width;
@@ -152,7 +161,7 @@ pub(crate) fn conv_pool<V: Vector, const OC: usize, const KH: usize, const KW: u
                     channel_pair::<V, OC, KH, KW>(planes, [rows, quarter], py, q, weights, pair);
                 for (c, sums) in [(2 * pair, first), (2 * pair + 1, second)] {
                     let mut value = V::add(sums, V::splat(bias[c]));
-                    if relu {
+                    if layer.relu {
                         value = V::max(value, V::zero());
                     }
                     value.store(&mut block[c * lanes..]);
@@ -276,14 +285,16 @@ mod tests {
             bias: &bias,
             relu,
         };
-        let mut planes = vec![f32::NAN; planes_len(hp, wp).unwrap()];
+        let mut planes = vec![f32::NAN; planes_len(hp, wp).expect("small planes")];
         let mut pooled = vec![f32::NAN; pool_out[0] * pool_out[1] * OC];
         assert!(conv_pool::<V, OC, 5, 5>(
             &layer,
-            [[2, 2], [2, 2], pool_out],
-            &padded,
-            &mut planes,
-            &mut pooled
+            PooledConv {
+                pool: [[2, 2], [2, 2], pool_out],
+                padded: &padded,
+                planes: &mut planes,
+                out: &mut pooled,
+            }
         ));
         let expected = reference(&layer, &padded, pool_out);
         for (i, (got, want)) in pooled.iter().zip(&expected).enumerate() {
@@ -327,14 +338,16 @@ mod tests {
             bias: &bias,
             relu: true,
         };
-        let mut planes = vec![0.0; planes_len(20, 20).unwrap()];
+        let mut planes = vec![0.0; planes_len(20, 20).expect("small planes")];
         let mut out = vec![f32::NAN; 8 * 8 * 4];
         assert!(!conv_pool::<Sse, 4, 5, 5>(
             &layer,
-            [[2, 2], [2, 2], [8, 8]],
-            &padded,
-            &mut planes,
-            &mut out
+            PooledConv {
+                pool: [[2, 2], [2, 2], [8, 8]],
+                padded: &padded,
+                planes: &mut planes,
+                out: &mut out,
+            }
         ));
         assert!(out.iter().all(|v| v.is_nan()), "nothing written");
         // Stride 2, but rows narrower than a vector of pooled pixels would need.
@@ -350,10 +363,12 @@ mod tests {
         };
         assert!(!conv_pool::<Sse, 4, 5, 5>(
             &layer,
-            [[2, 2], [2, 2], [1, 1]],
-            &padded[..100],
-            &mut planes,
-            &mut out
+            PooledConv {
+                pool: [[2, 2], [2, 2], [1, 1]],
+                padded: &padded[..100],
+                planes: &mut planes,
+                out: &mut out,
+            }
         ));
     }
 }

@@ -151,7 +151,9 @@ unsafe fn pooled_row<const PMAXSD: bool>(
                     let first = _mm_loadu_si128(codes.as_ptr().add(at).cast());
                     let second = _mm_loadu_si128(codes.as_ptr().add(at + 4).cast());
                     let w = vectors.add(ky * OUTPUTS * 4);
-                    for o in 0..OUTPUTS {
+                    let [left_sums, right_sums] = &mut acc;
+                    let outputs = left_sums.iter_mut().zip(right_sums.iter_mut());
+                    for (o, (left_sum, right_sum)) in outputs.enumerate() {
                         let w = w.add(o * 4);
                         let left = _mm_add_epi32(
                             _mm_madd_epi16(_mm_maddubs_epi16(first, _mm_load_si128(w)), ones),
@@ -170,8 +172,8 @@ unsafe fn pooled_row<const PMAXSD: bool>(
                                 ones,
                             ),
                         );
-                        acc[0][o] = _mm_add_epi32(acc[0][o], left);
-                        acc[1][o] = _mm_add_epi32(acc[1][o], right);
+                        *left_sum = _mm_add_epi32(*left_sum, left);
+                        *right_sum = _mm_add_epi32(*right_sum, right);
                     }
                 }
                 for o in 0..OUTPUTS {
