@@ -28,12 +28,24 @@ const STEPS: usize = 40;
 /// hypothesis (`controller/src/policy/commitment.rs`): its state is carried in the policy.
 const COMMITTED: &str = "cnn-modal-committed-observable";
 
+/// The model the robot package carries (`models/policy/ROBOT_MODEL`, int8) and its float
+/// twin: their cameras' first layers run the pooled-pixel kernels on x86-64.
+fn robot_models() -> [String; 2] {
+    let named = std::fs::read_to_string(committed_models().join("ROBOT_MODEL"))
+        .expect("models/policy/ROBOT_MODEL");
+    let int8 = named.trim().to_string();
+    let float = int8.trim_end_matches("-int8").to_string();
+    [int8, float]
+}
+
+fn committed_models() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy")
+}
+
+/// A committed model's manifest for the committed ones named here, else the fixture's.
 fn manifest(kind: &str) -> std::path::PathBuf {
-    if kind == COMMITTED {
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models/policy")
-            .join(kind)
-            .join("policy.toml")
+    if kind == COMMITTED || robot_models().iter().any(|name| name == kind) {
+        committed_models().join(kind).join("policy.toml")
     } else {
         fixture_manifest(kind)
     }
@@ -107,6 +119,13 @@ fn allocations_per_step_are_steady_and_the_tick_adds_none() {
             "{kind} on the compiled engine"
         );
         report(kind, Engine::Tract);
+    }
+    for kind in robot_models() {
+        assert_eq!(
+            report(&kind, Engine::Compiled),
+            0,
+            "{kind} on the compiled engine"
+        );
     }
     tick_adds_no_allocation_to_the_policys();
 }
