@@ -5,7 +5,7 @@
 
 use core::mem;
 
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[cfg(target_arch = "x86_64")]
 use super::kernels::int8::PooledPixelWeights;
 use super::kernels::int8::{Int8Kernel, QuadPanels, Window, ZeroGroups, code_run};
 use super::kernels::winograd;
@@ -140,8 +140,9 @@ pub(crate) struct QuantizedConv {
     pub out: BufferId,
     pub pool: Option<QuantizedPool>,
     /// The weights laid out for the kernel that computes a one-channel layer's pool cells
-    /// over pooled pixels, where the layer is that kernel's and it runs on this build.
-    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    /// over pooled pixels, where the layer is that kernel's (x86-64 only: the V5's eight
+    /// registers are not the sixteen its sums and loads were laid out for).
+    #[cfg(target_arch = "x86_64")]
     pub pooled_pixels: Option<PooledPixelWeights>,
 }
 
@@ -695,7 +696,7 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
         sums,
         out,
         pool,
-        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        #[cfg(target_arch = "x86_64")]
         pooled_pixels,
     } = conv;
     let (h, w, c) = (*h, *w, *c);
@@ -740,7 +741,7 @@ fn quantized_conv(conv: &mut QuantizedConv, buffers: &mut [Vec<f32>]) {
             let cell_len = *kh * *kw * len;
             let rows = target.chunks_exact_mut(*pw * outputs).take(*ph);
             for (cy, values) in rows.enumerate() {
-                #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+                #[cfg(target_arch = "x86_64")]
                 if let Some(weights) = pooled_pixels
                     && kernel.pooled_pixel_row(
                         weights,

@@ -451,7 +451,9 @@ impl Kernels for Avx512Kernels {
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn single_channel_conv_pool(layer: &ConvLayer<'_>, conv: PooledConv<'_>) -> bool {
-        single_channel_pool::conv_pool_of_layer::<simd::Avx512>(layer, conv)
+        // Sixteen pooled pixels a vector would compute most of the bottom camera's
+        // twenty-pixel rows twice; AVX2's eight ran both layers as fast or faster.
+        AvxKernels::single_channel_conv_pool(layer, conv)
     }
 
     #[inline(always)]

@@ -17,7 +17,7 @@
 //!   computes from them.
 
 use super::*;
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[cfg(target_arch = "x86_64")]
 use crate::policy::engine::kernels::int8::PooledPixelWeights;
 use crate::policy::engine::kernels::int8::{Window, ZeroGroups};
 use crate::policy::engine::layout::Grid;
@@ -398,11 +398,8 @@ impl Lowerer {
             sums: vec![0; elements(&[oc, out[1]])?],
             out: out_buffer,
             pool: None,
-            #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-            // Not on the V5's build yet: its eight registers are not the sixteen the kernel's
-            // sums and loads were laid out for.
-            pooled_pixels: PooledPixelWeights::new(&ordered, [oc, c], [kh, kw], strides, padded[1])
-                .filter(|_| cfg!(target_arch = "x86_64")),
+            #[cfg(target_arch = "x86_64")]
+            pooled_pixels: PooledPixelWeights::new(&ordered, [oc, c], [kh, kw], strides, padded[1]),
         }))
     }
 

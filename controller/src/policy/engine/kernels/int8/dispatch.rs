@@ -105,10 +105,10 @@ impl Int8Kernel {
 
     /// The pooled sums of row `py` of a one-channel layer's 2x2 pool (`pool`: window,
     /// stride, pooled size), `sums[q * 4 + o]`, by [`super::pooled_pixels`] from the code map
-    /// `codes`, where this kernel has it (SSSE3 and up, on x86-64) and the layer and pool are
-    /// its; false, nothing written, where not. The same exact sums as [`Self::largest`] on
-    /// the pool cells' windows.
-    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    /// `codes`, where this kernel has it (SSSE3 and up) and the layer and pool are its;
+    /// false, nothing written, where not. The same exact sums as [`Self::largest`] on the
+    /// pool cells' windows.
+    #[cfg(target_arch = "x86_64")]
     #[inline]
     pub(crate) fn pooled_pixel_row(
         self,
@@ -120,11 +120,7 @@ impl Int8Kernel {
     ) -> bool {
         use super::pooled_pixels::{OUTPUTS, pooled_row_sse41, pooled_row_ssse3};
         let [_, _, [ph, pw]] = pool;
-        if !cfg!(target_arch = "x86_64")
-            || py >= ph
-            || sums.len() < pw * OUTPUTS
-            || !weights.takes_pool(pool, codes.len())
-        {
+        if py >= ph || sums.len() < pw * OUTPUTS || !weights.takes_pool(pool, codes.len()) {
             return false;
         }
         match self.0 {

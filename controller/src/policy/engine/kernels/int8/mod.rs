@@ -42,7 +42,7 @@
 mod avx2;
 mod dispatch;
 mod panels;
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[cfg(target_arch = "x86_64")]
 mod pooled_pixels;
 mod quantize;
 mod reference;
@@ -54,7 +54,7 @@ mod tests;
 
 pub(crate) use dispatch::{Int8Kernel, ZeroGroups};
 pub(crate) use panels::QuadPanels;
-#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[cfg(target_arch = "x86_64")]
 pub(crate) use pooled_pixels::PooledPixelWeights;
 pub(crate) use quantize::code_run;
 pub(crate) use window::Window;

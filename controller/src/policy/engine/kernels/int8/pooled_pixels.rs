@@ -22,9 +22,6 @@
 // The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
 #![allow(unsafe_code)]
 
-#[cfg(target_arch = "x86")]
-use std::arch::x86::*;
-#[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
 /// The outputs the kernel computes.
@@ -250,7 +247,7 @@ pub(super) unsafe fn pooled_row_sse41(
     unsafe { pooled_row::<true>(weights, codes, py, pw, sums) }
 }
 
-#[cfg(all(test, target_arch = "x86_64"))]
+#[cfg(test)]
 mod tests {
     use super::*;
 
