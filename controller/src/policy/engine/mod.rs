@@ -533,12 +533,7 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn a_narrow_first_layer_runs_vectorised_over_pooled_pixels() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../models/policy/cnn-narrower-distilled-more-observable/policy.onnx");
-        let bytes = std::fs::read(&path).expect("the robot package's float student");
-        let proto = tract_onnx::onnx()
-            .proto_model_for_read(&mut &bytes[..])
-            .expect("parses");
+        let (path, proto) = committed_network("policy", "cnn-narrower-distilled-more-observable");
         let network =
             CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, Isa::Sse42).expect("lowers");
         let planes: Vec<_> = network
@@ -692,11 +687,17 @@ mod tests {
 
     /// A fixture's file and parsed model, by directory name.
     fn fixture(name: &str) -> (PathBuf, pb::ModelProto) {
+        committed_network("fixtures", name)
+    }
+
+    /// `models/<folder>/<name>/policy.onnx` and its parsed model.
+    fn committed_network(folder: &str, name: &str) -> (PathBuf, pb::ModelProto) {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../models/fixtures")
+            .join("../models")
+            .join(folder)
             .join(name)
             .join("policy.onnx");
-        let bytes = std::fs::read(&path).expect("fixture");
+        let bytes = std::fs::read(&path).expect("committed network");
         let proto = tract_onnx::onnx()
             .proto_model_for_read(&mut &bytes[..])
             .expect("parses");
@@ -877,12 +878,8 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn the_cameras_int8_layers_over_pooled_pixels_give_the_window_kernels_numbers_bit_for_bit() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../models/policy/cnn-narrower-distilled-more-observable-int8/policy.onnx");
-        let bytes = std::fs::read(&path).expect("the robot package's network");
-        let proto = tract_onnx::onnx()
-            .proto_model_for_read(&mut &bytes[..])
-            .expect("parses");
+        let (path, proto) =
+            committed_network("policy", "cnn-narrower-distilled-more-observable-int8");
         let mut rng = 0x9e37_79b9;
         let inputs: Vec<Vec<f32>> = (0..3).map(|_| random_thumbnails(&mut rng)).collect();
         for isa in Isa::available().filter(|isa| *isa >= Isa::Ssse3) {
