@@ -402,7 +402,8 @@ fn truncate_npz_member(path: &Path, member: &str, by: usize) {
 
 #[test]
 fn episodes_in_parallel_jobs_end_as_in_one_serial_run() {
-    let policy = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy/dagger/policy.toml");
+    let policy =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy/cnn-modal-dagger4/policy.toml");
     let run = |name: &str, jobs: &str| {
         let out = scratch(name);
         fs::create_dir_all(&out).expect("scratch");

@@ -187,9 +187,9 @@ fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_s
         "fixtures/rcnn",
         "policy/cnn-modal",
         // Its 4-output layer runs SSSE3's panels of 4 (the narrow network's V5 tick).
-        "policy/cnn-narrow-observable-int8",
+        "policy/cnn-8-16-4-8-observable-int8",
         // Its 4-output float layers run the blocked portable convolution on every set.
-        "policy/cnn-narrower-distilled-more-observable",
+        "policy/cnn-4-16-4-8-distilled-dagger2-observable",
         // Its thumbnails standardised before the network ([normalisation] standardise).
         "policy/cnn-conditions-standardised",
         shipped.as_str(),

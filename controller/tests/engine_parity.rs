@@ -16,7 +16,7 @@ use support::fixture;
 use tract_onnx::pb;
 
 /// Feed-forward models differ by at most 2.6e-6 (the README's figure), a recurrent one's
-/// state carries rounding over the 60 steps to 7.3e-6 (`rcnn-long`); the margins are for
+/// state carries rounding over the 60 steps to 7.3e-6 (`rcnn-24-epochs`); the margins are for
 /// other CPUs' rounding. A whole episode: `tests/recurrent_parity.rs`.
 const TOLERANCE: f32 = 4e-6;
 const RECURRENT_TOLERANCE: f32 = 1e-5;
@@ -25,12 +25,12 @@ const RECURRENT_TOLERANCE: f32 = 1e-5;
 /// order, so a value within rounding of half a grid step can take the neighbouring step in one
 /// engine and not in the other, and that step is carried on. Such a step is rare, and small:
 /// - at most [`INT8_DIFFERING_SHARE`] of the command components may differ by more than the
-///   float [`TOLERANCE`] (seen: at most 3.3 %, `dagger-observable-int8`; a wrong scale, zero
+///   float [`TOLERANCE`] (seen: at most 3.3 %, `cnn-dagger1-observable-int8`; a wrong scale, zero
 ///   point or rounding rule moves nearly every command);
 /// - none by more than [`INT8_CARRIED_STEPS`] steps of one hidden unit through the largest
 ///   weight of the command layer ([`int8_step`]; seen: at most 0.75 of one, the random int8
 ///   fixture, whose small weights leave several units a step off; 0.24 for
-///   `cnn-narrow-distilled-more-observable-int8`).
+///   `cnn-8-16-4-8-distilled-dagger2-observable-int8`).
 ///
 /// The figures are the same on CI's CPU and on the session's (AMD EPYC, AVX-512); an earlier
 /// machine's tract rounded otherwise (the int8 fixture: 1.5e-8 there, 1.46e-4 here), and

@@ -49,7 +49,7 @@ def timed(command: list[str], env: dict) -> tuple[float, float, str]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=seed_range, default=seed_range("30000..30008"))
-    parser.add_argument("--policy", default="models/policy/dagger-observable/policy.toml")
+    parser.add_argument("--policy", default="models/policy/cnn-dagger1-observable/policy.toml")
     parser.add_argument("--isa", default="avx2+fma")
     parser.add_argument("--out", type=Path, default=Path("models/cluster"))
     args = parser.parse_args(argv)

@@ -165,7 +165,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=Path, help="directory of the rounds' datasets (round-<i>/), for their beta, rows and goals")
     parser.add_argument("--out", type=Path, required=True, help="where dagger.md and dagger.png go")
     parser.add_argument("--chosen", type=Path, help="write the chosen iteration's directory into this file")
-    parser.add_argument("--ship", type=Path, help="copy the chosen iteration here, with the table and the plot")
+    parser.add_argument(
+        "--ship",
+        help="copy the chosen iteration here, with the table and the plot; `{iteration}` in it becomes the chosen "
+        "iteration's number (models/policy/cnn-dagger{iteration}-observable: the name says how many rounds it learned from)",
+    )
     args = parser.parse_args(argv)
     present = [d for d in args.iteration if (d / "policy.toml").is_file()]
     if len(present) < len(args.iteration):
@@ -183,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.ship is not None and len(rows) > 1:
         chosen = choose(rows[1:])
         source = Path(chosen["directory"])
+        args.ship = Path(args.ship.replace("{iteration}", str(chosen["iteration"])))
         args.ship.mkdir(parents=True, exist_ok=True)
         for stale in args.ship.glob("*.onnx"):
             stale.unlink()

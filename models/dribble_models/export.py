@@ -11,7 +11,7 @@ import onnx
 import torch
 
 from . import contract
-from .manifest import Manifest, TrainingRecord
+from .manifest import Lineage, Manifest, TrainingRecord
 from .networks import CNN, HCNN, RCNN, ModalCNN, RCNNStep, set_standardise, standardises
 
 
@@ -76,7 +76,7 @@ def export_rcnn_step(model: RCNN, path: Path) -> Path:
     )
 
 
-def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training: TrainingRecord) -> Path:
+def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training: TrainingRecord, lineage: Lineage | None = None) -> Path:
     """Writes the model's ONNX file(s) and `policy.toml` into `directory`; returns the manifest."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -84,6 +84,7 @@ def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training
     with network_only(model):
         manifest = _export_networks(model, directory, training)
     manifest.standardise = standardise
+    manifest.lineage = lineage
     return manifest.write(directory)
 
 

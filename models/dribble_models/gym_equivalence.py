@@ -5,7 +5,7 @@ outcomes, computed commands and the 10 Hz paths, and gives the environment's ste
 second.
 
     PYTHONPATH=models python -m dribble_models.gym_equivalence \\
-        --policy models/policy/dagger-observable/policy.toml --episodes 10000..10005
+        --policy models/policy/cnn-dagger1-observable/policy.toml --episodes 10000..10005
 
 The two engines round differently (onnxruntime against the compiled engine, about 1e-6 on a
 command); a camera image turns such differences into slightly different images, so the paths
@@ -172,7 +172,7 @@ def compare(environment: list[Played], evaluation: list[Played]) -> list[dict]:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--policy", default="models/policy/dagger-observable/policy.toml")
+    parser.add_argument("--policy", default="models/policy/cnn-dagger1-observable/policy.toml")
     parser.add_argument("--teacher", action="store_true",
                         help="drive with the teacher's command from info instead of the policy")
     parser.add_argument("--expert", default="paper", choices=["paper", "observable", "orbit"])

@@ -37,6 +37,38 @@ class TrainingRecord:
     notes: str | None = None
 
 
+@dataclass(frozen=True)
+class ModelReference:
+    """Another model a policy came from: its directory then and the first twelve digits of
+    its network's sha256, which still name it after a rename."""
+
+    model: str
+    sha256: str
+    how: str | None = None
+
+    def toml(self) -> str:
+        how = f", how = {_string(self.how)}" if self.how else ""
+        return f"{{ model = {_string(self.model)}, sha256 = {_string(self.sha256)}{how} }}"
+
+
+@dataclass
+class Lineage:
+    """`[lineage]`: the models a policy came from, so that its name need not say it."""
+
+    started_from: ModelReference | None = None
+    distilled_from: ModelReference | None = None
+    former_names: list[str] = field(default_factory=list)
+
+    def to_toml(self) -> list[str]:
+        lines = ["", "# Where the weights came from (an int8 policy's float one: [quantization]).", "[lineage]"]
+        for key in ("started_from", "distilled_from"):
+            if getattr(self, key) is not None:
+                lines.append(f"{key} = {getattr(self, key).toml()}")
+        if self.former_names:
+            lines.append(f"former_names = [{', '.join(_string(n) for n in self.former_names)}]")
+        return lines
+
+
 @dataclass
 class Manifest:
     kind: str
@@ -48,6 +80,7 @@ class Manifest:
     command_scale: dict[str, float] = field(default_factory=lambda: dict(contract.COMMAND_SCALE))
     # Each thumbnail standardised by the controller before the network (contract.network_input).
     standardise: bool = False
+    lineage: Lineage | None = None
 
     def to_toml(self) -> str:
         lines = [
@@ -106,6 +139,8 @@ class Manifest:
                 f"clusters = {len(self.centroids)}",
                 f"centroids = [\n{rows},\n]",
             ]
+        if self.lineage is not None:
+            lines += self.lineage.to_toml()
         lines += ["", "[training]", f"dataset = {_string(self.training.dataset)}", f"epochs = {self.training.epochs}"]
         t = self.training
         for key in ("dataset_hash", "teacher", "test_dataset_hash", "torch_version", "notes"):

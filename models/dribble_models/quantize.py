@@ -238,10 +238,11 @@ def quantization_toml(record: dict) -> str:
 
 
 def with_precision(manifest_text: str, precision: str) -> str:
-    """The manifest with `precision = ...` after its `networks` line."""
+    """The manifest with `precision = ...` after its `networks` line, without the float
+    model's former names (its lineage's other lines describe the int8 weights too)."""
     out = []
     for line in manifest_text.splitlines():
-        if line.startswith("precision ="):
+        if line.startswith("precision =") or line.startswith("former_names ="):
             continue
         out.append(line)
         if line.startswith("networks ="):

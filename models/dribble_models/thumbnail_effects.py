@@ -3,7 +3,7 @@ policies on held-out dataset rows whose thumbnails were changed the way a camera
 changes them (issue 48).
 
     python -m dribble_models.thumbnail_effects --dataset ~/.cache/dribble/data/randomized-detector \\
-        --seeds 55,56,57 models/policy/dagger-observable-more models/policy/cnn-conditions
+        --seeds 55,56,57 models/policy/cnn-dagger2-observable models/policy/cnn-conditions
 
 A closed loop under a rendered condition costs minutes per episode on two cores; this costs
 seconds per policy, so it ranks training recipes before closed loops on the selection seeds

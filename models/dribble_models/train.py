@@ -71,7 +71,7 @@ from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .seed_ranges import refuse_reserved
 from .export import export_policy
 from .gating import fit_centroids
-from .manifest import TrainingRecord
+from .manifest import Lineage, ModelReference, TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
 from .one_way_detour import OneWayDetour
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of
@@ -900,6 +900,21 @@ def start_sha256(path: Path) -> str:
     return file_sha256(network_of(path) if is_shipped_model(path) else path)
 
 
+def lineage_of(args: "TrainingConfig") -> Lineage | None:
+    """The `[lineage]` of the model a run writes: the model it started from (its kept weights,
+    or pruned) and the one whose commands were its labels."""
+    def reference(path: Path, how: str | None = None) -> ModelReference:
+        return ModelReference(str(path), start_sha256(path)[:12], how)
+
+    started = None
+    if args.init_from is not None:
+        started = reference(args.init_from)
+    elif args.prune_from is not None:
+        started = reference(args.prune_from, "pruned to these filters, largest L1 norms kept")
+    distilled = reference(args.distill_from) if args.distill_from is not None else None
+    return Lineage(started, distilled) if started or distilled else None
+
+
 def added_description(directory: Path) -> str:
     """An added dataset's name and who drove its episodes: a policy (a DAgger round's
     `dribble record --driver`, whose dataset.json names the driver) or the expert."""
@@ -1149,7 +1164,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     training.model.to("cpu")  # exported and plotted from the CPU
     args.out.mkdir(parents=True, exist_ok=True)
-    export_policy(training.model, args.out, record)
+    export_policy(training.model, args.out, record, lineage_of(args))
     plot_history(training.history, args.out / "loss_curve.png", f"{args.kind} on {args.dataset.name} ({dataset.rows} rows)")
     (args.out / "scores.json").write_text(json.dumps({"kind": args.kind, "dataset_hash": dataset.content_hash, **scores, "history": training.history}, indent=1) + "\n")
     for name, result in scores.items():

@@ -86,7 +86,7 @@ def test_a_recording_on_two_nodes_is_the_serial_recording_byte_for_byte_and_resu
 
 
 def test_an_evaluation_on_two_nodes_with_shipped_binaries_is_the_serial_one(ray_cluster, tmp_path):
-    policy = "models/policy/dagger-observable/policy.toml"  # relative: shipped to each node
+    policy = "models/policy/cnn-dagger1-observable/policy.toml"  # relative: shipped to each node
     serial = tmp_path / "serial.json"
     dribble("eval", "--driver", policy, "--episodes", "10000..10003", *TIME_LIMIT,
             "--domain", f"cluster-test-{os.getpid()}", "--trajectories", str(serial),

@@ -60,7 +60,7 @@ def test_the_teacher_through_the_environment_replays_dribble_eval_bit_for_bit():
 
 
 def test_a_shipped_policy_through_onnxruntime_plays_as_dribble_eval():
-    manifest = REPOSITORY / "models/policy/dagger-observable/policy.toml"
+    manifest = REPOSITORY / "models/policy/cnn-dagger1-observable/policy.toml"
     policy = OnnxPolicy(manifest)
     seeds = [10000, 10001]
     environment = play_in_environment(lambda observation, _: policy(observation), seeds, 4.0)

@@ -231,6 +231,31 @@ pub struct TrainingRecord {
     pub notes: Option<String>,
 }
 
+/// Another model a policy came from: its directory when it was made, and the sha256 (its
+/// first twelve digits) of that model's network then, which still names it after a rename.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelReference {
+    pub model: String,
+    pub sha256: String,
+    /// How it was used where that is not plain: "pruned to these filters, largest L1 norms kept".
+    pub how: Option<String>,
+}
+
+/// Where a policy came from, so that its name need not say it (an int8 policy's float one
+/// is its `[quantization]` record's `float_networks_sha256`).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Lineage {
+    /// The model whose weights training started from.
+    pub started_from: Option<ModelReference>,
+    /// The model whose commands were the training labels (distillation).
+    pub distilled_from: Option<ModelReference>,
+    /// The names the model's directory had before (models/policy/<name>).
+    #[serde(default)]
+    pub former_names: Vec<String>,
+}
+
 /// A parsed and checked `policy.toml`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -254,6 +279,8 @@ pub struct PolicyManifest {
     pub gating: Option<Gating>,
     /// A modal CNN's hypotheses, when the controller is to commit to one of them.
     pub hypotheses: Option<Hypotheses>,
+    /// Which models it came from, for people; absent where it was trained from scratch.
+    pub lineage: Option<Lineage>,
     pub training: TrainingRecord,
     /// The directory the manifest was read from; network paths are relative to it.
     #[serde(skip)]
@@ -494,6 +521,27 @@ test_error = 0.16
     fn parse(text: &str) -> Result<PolicyManifest, String> {
         PolicyManifest::parse(text, Path::new("/robot/models/cnn/policy.toml"))
             .map_err(|error| error.to_string())
+    }
+
+    #[test]
+    fn reads_a_lineage_and_refuses_unknown_keys_in_it() {
+        let lineage = "[lineage]\nstarted_from = { model = \"models/policy/a\", sha256 = \"0a6a900608e7\" }\n\
+                       distilled_from = { model = \"models/policy/b\", sha256 = \"2160409187d4\", how = \"x\" }\n\
+                       former_names = [\"old\"]\n";
+        let text = CNN.replace("[training]", &format!("{lineage}[training]"));
+        let manifest = parse(&text).expect("valid manifest");
+        let read = manifest.lineage.expect("a lineage");
+        assert_eq!(
+            read.started_from.map(|m| m.model).as_deref(),
+            Some("models/policy/a")
+        );
+        assert_eq!(
+            read.distilled_from.and_then(|m| m.how).as_deref(),
+            Some("x")
+        );
+        assert_eq!(read.former_names, vec!["old".to_string()]);
+        assert!(parse(CNN).expect("valid manifest").lineage.is_none());
+        assert!(parse(&text.replace("former_names", "formerly")).is_err());
     }
 
     #[test]

@@ -533,7 +533,8 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn a_narrow_first_layer_runs_vectorised_over_pooled_pixels() {
-        let (path, proto) = committed_network("policy", "cnn-narrower-distilled-more-observable");
+        let (path, proto) =
+            committed_network("policy", "cnn-4-16-4-8-distilled-dagger2-observable");
         let network =
             CompiledNetwork::lower(&path, &proto, &CNN_INPUTS, Isa::Sse42).expect("lowers");
         let planes: Vec<_> = network
@@ -879,7 +880,7 @@ mod tests {
     #[test]
     fn the_cameras_int8_layers_over_pooled_pixels_give_the_window_kernels_numbers_bit_for_bit() {
         let (path, proto) =
-            committed_network("policy", "cnn-narrower-distilled-more-observable-int8");
+            committed_network("policy", "cnn-4-16-4-8-distilled-dagger2-observable-int8");
         let mut rng = 0x9e37_79b9;
         let inputs: Vec<Vec<f32>> = (0..3).map(|_| random_thumbnails(&mut rng)).collect();
         for isa in Isa::available().filter(|isa| *isa >= Isa::Ssse3) {
