@@ -57,11 +57,13 @@ class Lineage:
 
     started_from: ModelReference | None = None
     distilled_from: ModelReference | None = None
+    # The CNN whose convolutions an R-CNN took (--features-from).
+    features_from: ModelReference | None = None
     former_names: list[str] = field(default_factory=list)
 
     def to_toml(self) -> list[str]:
         lines = ["", "# Where the weights came from (an int8 policy's float one: [quantization]).", "[lineage]"]
-        for key in ("started_from", "distilled_from"):
+        for key in ("started_from", "distilled_from", "features_from"):
             if getattr(self, key) is not None:
                 lines.append(f"{key} = {getattr(self, key).toml()}")
         if self.former_names:

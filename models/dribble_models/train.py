@@ -902,7 +902,8 @@ def start_sha256(path: Path) -> str:
 
 def lineage_of(args: "TrainingConfig") -> Lineage | None:
     """The `[lineage]` of the model a run writes: the model it started from (its kept weights,
-    or pruned) and the one whose commands were its labels."""
+    or pruned), the one whose commands were its labels, and the CNN whose convolutions an
+    R-CNN took."""
     def reference(path: Path, how: str | None = None) -> ModelReference:
         return ModelReference(str(path), start_sha256(path)[:12], how)
 
@@ -912,7 +913,10 @@ def lineage_of(args: "TrainingConfig") -> Lineage | None:
     elif args.prune_from is not None:
         started = reference(args.prune_from, "pruned to these filters, largest L1 norms kept")
     distilled = reference(args.distill_from) if args.distill_from is not None else None
-    return Lineage(started, distilled) if started or distilled else None
+    features = None
+    if args.features_from is not None:
+        features = reference(args.features_from, "kept fixed" if args.freeze_features else "trained on")
+    return Lineage(started, distilled, features) if started or distilled or features else None
 
 
 def added_description(directory: Path) -> str:

@@ -251,6 +251,8 @@ pub struct Lineage {
     pub started_from: Option<ModelReference>,
     /// The model whose commands were the training labels (distillation).
     pub distilled_from: Option<ModelReference>,
+    /// The CNN whose convolutions an R-CNN took (`how`: kept fixed or trained on).
+    pub features_from: Option<ModelReference>,
     /// The names the model's directory had before (models/policy/<name>).
     #[serde(default)]
     pub former_names: Vec<String>,
@@ -527,6 +529,7 @@ test_error = 0.16
     fn reads_a_lineage_and_refuses_unknown_keys_in_it() {
         let lineage = "[lineage]\nstarted_from = { model = \"models/policy/a\", sha256 = \"0a6a900608e7\" }\n\
                        distilled_from = { model = \"models/policy/b\", sha256 = \"2160409187d4\", how = \"x\" }\n\
+                       features_from = { model = \"models/policy/c\", sha256 = \"620420762658\" }\n\
                        former_names = [\"old\"]\n";
         let text = CNN.replace("[training]", &format!("{lineage}[training]"));
         let manifest = parse(&text).expect("valid manifest");
@@ -538,6 +541,10 @@ test_error = 0.16
         assert_eq!(
             read.distilled_from.and_then(|m| m.how).as_deref(),
             Some("x")
+        );
+        assert_eq!(
+            read.features_from.map(|m| m.sha256).as_deref(),
+            Some("620420762658")
         );
         assert_eq!(read.former_names, vec!["old".to_string()]);
         assert!(parse(CNN).expect("valid manifest").lineage.is_none());
