@@ -27,13 +27,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from . import dataset, seed_ranges
+from .camera_effects import apply_camera_effects
 from .gym_equivalence import OnnxPolicy
 from .train import row_errors
-
-GAMMA = 2.2
-
 
 @dataclass(frozen=True)
 class ThumbnailEffect:
@@ -47,23 +46,12 @@ class ThumbnailEffect:
     vignetting: float = 0.0
 
     def apply(self, thumbnails: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """u8 [N, H, W] -> u8 [N, H, W]: in the order the simulator applies them (exposure and
-        vignetting on linear light, then the lens, contrast around mid-grey, noise)."""
-        display = thumbnails.astype(np.float32) / 255.0
-        n, h, w = display.shape
-        if self.exposure_ev or self.vignetting:
-            y = np.linspace(-1, 1, h, dtype=np.float32)[:, None]
-            x = np.linspace(-1, 1, w, dtype=np.float32)[None, :]
-            falloff = 1 - self.vignetting * (x * x + y * y) / 2
-            linear = display**GAMMA * falloff * np.float32(2.0**self.exposure_ev)
-            display = np.clip(linear, 0, 1) ** (1 / GAMMA)
-        if self.blur:
-            padded = np.pad(display, ((0, 0), (1, 1), (1, 1)), mode="edge")
-            display = sum(padded[:, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)) / 9
-        display = 0.5 + (display - 0.5) * self.contrast
-        if self.noise:
-            display = display + rng.normal(0.0, self.noise, display.shape).astype(np.float32)
-        return np.clip(np.rint(display * 255.0), 0, 255).astype(np.uint8)
+        """u8 [N, H, W] -> u8 [N, H, W], as `apply_camera_effects` changes them (the noise
+        drawn from `rng`)."""
+        display = torch.from_numpy(thumbnails.astype(np.float32) / 255.0)[:, None]
+        noise = torch.from_numpy(rng.normal(0.0, self.noise, display.shape).astype(np.float32)) if self.noise else 0.0
+        shown = apply_camera_effects(display, self.exposure_ev, self.contrast, self.vignetting, float(self.blur), noise)
+        return np.clip(np.rint(shown[:, 0].numpy() * 255.0), 0, 255).astype(np.uint8)
 
 
 #: Severity 3 of the point and lens conditions as the simulator draws them

@@ -71,6 +71,7 @@ from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .seed_ranges import refuse_reserved
 from .export import export_policy
 from .gating import fit_centroids
+from .camera_effects import apply_camera_effects
 from .manifest import Lineage, ModelReference, TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
 from .one_way_detour import OneWayDetour
@@ -177,13 +178,12 @@ class Augment:
 
 @dataclass
 class CameraAugment:
-    """What the simulator's camera conditions (sim-harness/src/conditions) do to a thumbnail,
-    applied to a share of the training rows where rendering them would cost an episode:
-    exposure (a gain of the linear signal, clipped where the sensor saturates), contrast
-    around mid-grey, vignetting, a softer or moving lens (a 3x3 blur at the thumbnail's scale,
-    12 camera pixels) and sensor noise as it survives the 4x4 averaging. Top and bottom share
-    a row's exposure and contrast (one light, one processor); each has its own noise. The
-    other conditions (light and shadows, venues, robots) change the scene and are rendered."""
+    """What the simulator's camera conditions do to a thumbnail (`apply_camera_effects`:
+    exposure, vignetting, a softer or moving lens, contrast, sensor noise), drawn per row and
+    applied to a share of the training rows where rendering them would cost an episode. Top
+    and bottom share a row's exposure and contrast (one light, one processor); each has its
+    own noise. The other conditions (light and shadows, venues, robots) change the scene and
+    are rendered."""
 
     share: float = 0.5  # of the rows, augmented
     exposure_ev: float = 1.2  # uniform in +-
@@ -218,17 +218,8 @@ class CameraAugment:
         blur = (torch.rand(n, 1, 1, 1, generator=generator) < self.blur_share).float() * chosen
         out = []
         for images in (top, bottom):
-            h, w = images.shape[2:]
-            y = torch.linspace(-1, 1, h).view(1, 1, h, 1)
-            x = torch.linspace(-1, 1, w).view(1, 1, 1, w)
-            falloff = 1 - vignetting * (x * x + y * y) / 2
-            linear = images.clamp(0, 1) ** 2.2 * falloff * torch.pow(2.0, ev)
-            display = linear.clamp(0, 1) ** (1 / 2.2)
-            blurred = nn.functional.avg_pool2d(nn.functional.pad(display, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
-            display = blur * blurred + (1 - blur) * display
-            display = 0.5 + (display - 0.5) * contrast
-            display = display + torch.randn(display.shape, generator=generator) * sigma
-            out.append(display.clamp(0.0, 1.0))
+            noise = torch.randn(images.shape, generator=generator) * sigma
+            out.append(apply_camera_effects(images, ev, contrast, vignetting, blur, noise))
         return out[0], out[1]
 
 
