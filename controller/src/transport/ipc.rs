@@ -44,38 +44,28 @@ pub const TICK_SERVICE: &str = "dribble/sim/tick";
 pub const CONTROLLER_NODE: &str = "dribble-controller";
 pub const SIMULATOR_NODE: &str = "dribble-simulator";
 
-// SAFETY (all four): `#[repr(C)]` structs of integers, floats and byte arrays, without
-// pointers, references or handles; their layouts are fixed by tests on every target.
-#[allow(unsafe_code)]
-unsafe impl ZeroCopySend for FrameHeader {
-    unsafe fn type_name() -> &'static str {
-        "dribble::FrameHeader"
-    }
+/// `ZeroCopySend` for the messages, each named `dribble::<Type>` across processes (a
+/// subscriber of another layout is refused by that name).
+macro_rules! zero_copy_send {
+    ($($message:ident),*) => {$(
+        // SAFETY: `#[repr(C)]` structs of integers, floats and byte arrays, without pointers,
+        // references or handles; their layouts are fixed by tests on every target.
+        #[allow(unsafe_code)]
+        unsafe impl ZeroCopySend for $message {
+            unsafe fn type_name() -> &'static str {
+                concat!("dribble::", stringify!($message))
+            }
+        }
+    )*};
 }
-#[allow(unsafe_code)]
-unsafe impl ZeroCopySend for TopFrame {
-    unsafe fn type_name() -> &'static str {
-        "dribble::TopFrame"
-    }
-}
-#[allow(unsafe_code)]
-unsafe impl ZeroCopySend for BottomFrame {
-    unsafe fn type_name() -> &'static str {
-        "dribble::BottomFrame"
-    }
-}
-#[allow(unsafe_code)]
-unsafe impl ZeroCopySend for MotionCommand {
-    unsafe fn type_name() -> &'static str {
-        "dribble::MotionCommand"
-    }
-}
-#[allow(unsafe_code)]
-unsafe impl ZeroCopySend for LockStepTick {
-    unsafe fn type_name() -> &'static str {
-        "dribble::LockStepTick"
-    }
-}
+
+zero_copy_send!(
+    FrameHeader,
+    TopFrame,
+    BottomFrame,
+    MotionCommand,
+    LockStepTick
+);
 
 type Ipc = ipc::Service;
 
@@ -373,6 +363,21 @@ fn next_message<T: core::fmt::Debug + Copy + ZeroCopySend>(
     }
 }
 
+/// The next message on `subscriber`, waiting at most `timeout` for `events` to signal one
+/// when none is there (`what` names the wait in an error).
+fn next_or_wait<T: core::fmt::Debug + Copy + ZeroCopySend>(
+    subscriber: &Subscriber<Ipc, T, ()>,
+    events: &Listener<Ipc>,
+    timeout: Duration,
+    what: &'static str,
+) -> Result<Option<T>, TransportError> {
+    if let Some(message) = next_message(subscriber)? {
+        return Ok(Some(message));
+    }
+    wait_for_event(events, timeout, what)?;
+    next_message(subscriber)
+}
+
 /// Sleeps until the other side signals, at most `timeout`. A signal (SIGINT, SIGTERM)
 /// only cuts the wait short: the caller's loop looks at its stop flag next.
 ///
@@ -496,11 +501,12 @@ impl ControllerPorts for Iceoryx2ControllerPorts {
     }
 
     fn next_tick(&mut self, timeout: Duration) -> Result<Option<LockStepTick>, TransportError> {
-        if let Some(tick) = next_message(&self.ticks)? {
-            return Ok(Some(tick));
-        }
-        wait_for_event(&self.tick_events, timeout, "waiting for a tick failed")?;
-        next_message(&self.ticks)
+        next_or_wait(
+            &self.ticks,
+            &self.tick_events,
+            timeout,
+            "waiting for a tick failed",
+        )
     }
 }
 
@@ -572,18 +578,14 @@ impl SimulatorPorts for Iceoryx2SimulatorPorts {
     }
 
     fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
-        let command = match next_message(&self.commands)? {
-            Some(command) => Some(command),
-            None => {
-                wait_for_event(
-                    &self.command_events,
-                    timeout,
-                    "waiting for a command failed",
-                )?;
-                next_message(&self.commands)?
-            }
-        };
-        command.map(checked_command).transpose()
+        next_or_wait(
+            &self.commands,
+            &self.command_events,
+            timeout,
+            "waiting for a command failed",
+        )?
+        .map(checked_command)
+        .transpose()
     }
 }
 
@@ -616,15 +618,12 @@ impl CommandMonitor {
 
     /// The next command in order, waiting at most `timeout` for the controller to send one.
     pub fn next(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
-        if let Some(command) = next_message(&self.commands)? {
-            return Ok(Some(command));
-        }
-        wait_for_event(
+        next_or_wait(
+            &self.commands,
             &self.command_events,
             timeout,
             "waiting for a command failed",
-        )?;
-        next_message(&self.commands)
+        )
     }
 }
 
