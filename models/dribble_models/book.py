@@ -6,7 +6,8 @@ both honest.
 
 Three checks (`models/tests/test_book.py` runs them; `scripts/test` also builds the book):
 
-- **Generated pages**: `docs/src/reference/seeds.md` is written from `seed_ranges.py`
+- **Generated pages**: `docs/src/reference/seeds.md` is written from `seed_ranges.py`,
+  `design/cycles.md`, `design/compiled-nn.md` and `design/soak.md` from the runs' JSON
   (the command line's page, `reference/cli.md`, from the tools' `--help` by
   `tests/cli_reference.rs`).
 - **Links**: every relative link in README.md and the book names a file that exists, and
@@ -27,7 +28,7 @@ import re
 import sys
 from pathlib import Path
 
-from . import compiled_nn_report, cycles_report, seed_ranges
+from . import compiled_nn_report, cycles_report, seed_ranges, soak_report
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 BOOK = REPOSITORY / "docs" / "src"
@@ -81,6 +82,7 @@ GENERATED = {
     "reference/seeds.md": seeds_page,
     "design/cycles.md": cycles_report.page,
     "design/compiled-nn.md": compiled_nn_report.page,
+    "design/soak.md": soak_report.page,
 }
 
 

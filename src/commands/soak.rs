@@ -60,6 +60,12 @@ pub struct SoakArgs {
     /// The controller binary. Default: `dribble-controller` beside this program.
     #[arg(long)]
     pub controller: Option<PathBuf>,
+    /// The compiled engine's instruction set the controller runs (passed as --isa: portable,
+    /// sse2, ssse3, sse4.2, avx2+fma, avx512; the Nao V5's is ssse3, the V6's sse4.2).
+    /// Default: the widest this CPU runs. Recorded in soak.json with the engine the
+    /// controller reports.
+    #[arg(long)]
+    pub isa: Option<String>,
     /// The iceoryx2 domain. Default: one of its own, `soak-PID`.
     #[arg(long)]
     pub domain: Option<String>,

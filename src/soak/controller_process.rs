@@ -97,6 +97,9 @@ pub(crate) fn start_controller(
     if args.priority > 0 {
         command.args(["--fifo-priority", &args.priority.to_string()]);
     }
+    if let Some(isa) = &args.isa {
+        command.args(["--isa", isa]);
+    }
     command
         .spawn()
         .with_context(|| format!("cannot start {}", binary.display()))

@@ -103,6 +103,16 @@ pub(crate) fn fault_reports(faults: &[FaultReport]) -> Vec<serde_json::Value> {
         .collect()
 }
 
+/// The engine the controller's start-up line names (`policy: ... , engine compiled (ssse3)`),
+/// if it printed one.
+fn engine_of(controller_log: &str) -> Option<&str> {
+    controller_log
+        .lines()
+        .find(|line| line.starts_with("policy: "))
+        .and_then(|line| line.rsplit_once(", engine "))
+        .map(|(_, engine)| engine.trim())
+}
+
 pub(crate) fn summarise(
     args: &SoakArgs,
     seconds: &[Second],
@@ -165,6 +175,8 @@ pub(crate) fn summarise(
         "faults": fault_json,
         "controller_statistics": controller_statistics,
         "policy": args.policy,
+        "isa": args.isa,
+        "engine": engine_of(&controller_log),
         "minutes": args.minutes,
         "commands": totals.commands,
         "computed": totals.new_commands,
@@ -196,4 +208,18 @@ pub(crate) fn summarise(
     }
     println!("soak: passed");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::engine_of;
+
+    #[test]
+    fn the_engine_is_read_from_the_controllers_start_up_line() {
+        let log = "ts=... event=controller_started\n\
+                   policy: cnn from models/policy/x (1 network file(s), fp32, trained on \"train\"), engine compiled (ssse3)\n\
+                   statistics {}\n";
+        assert_eq!(engine_of(log), Some("compiled (ssse3)"));
+        assert_eq!(engine_of("no such line\n"), None);
+    }
 }
