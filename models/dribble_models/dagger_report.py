@@ -158,6 +158,16 @@ def choose(rows: list[dict]) -> dict:
     return next(row for row in rows if str(row["iteration"]) == chosen.name)
 
 
+def ship_target(pattern: str, iteration: int) -> Path:
+    """Where the chosen iteration goes: `pattern` with `{iteration}` replaced. A model
+    directory there that no DAgger run shipped (no ITERATION file: a model trained some other
+    way that happens to carry the name) is never overwritten."""
+    target = Path(pattern.replace("{iteration}", str(iteration)))
+    if (target / "policy.toml").is_file() and not (target / "ITERATION").is_file():
+        raise ValueError(f"{target} holds a model no DAgger run shipped; ship elsewhere (--ship)")
+    return target
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dribble_models.dagger_report", description=__doc__.split("\n\n")[0])
     parser.add_argument("--base", type=Path, required=True, help="the behaviour-cloned model DAgger started from (iteration 0)")
@@ -187,7 +197,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.ship is not None and len(rows) > 1:
         chosen = choose(rows[1:])
         source = Path(chosen["directory"])
-        args.ship = Path(args.ship.replace("{iteration}", str(chosen["iteration"])))
+        try:
+            args.ship = ship_target(args.ship, chosen["iteration"])
+        except ValueError as error:
+            print(f"dagger_report: {error}", file=sys.stderr)
+            return 2
         args.ship.mkdir(parents=True, exist_ok=True)
         for stale in args.ship.glob("*.onnx"):
             stale.unlink()

@@ -8,6 +8,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from dribble_models.train import main as train_main
 
@@ -164,3 +165,17 @@ def test_a_base_that_learned_from_more_data_needs_it_named_and_refuses_any_other
     assert result.returncode != 0 and "seeds 1500..1501" in result.stdout, result.stdout[-2000:] + result.stderr[-2000:]
     assert "its recipe: --epoch-fraction 1.0 --lanes 8 --window 600 --filters 8,16,4,8" in result.stdout, result.stdout[-2000:]
     assert "no-binaries/dribble" in result.stderr, result.stderr[-2000:]
+
+
+def test_a_shipped_iteration_never_overwrites_a_model_no_dagger_run_shipped(tmp_path):
+    from dribble_models.dagger_report import ship_target
+
+    pattern = str(tmp_path / "cnn-dagger{iteration}-observable")
+    assert ship_target(pattern, 3) == tmp_path / "cnn-dagger3-observable"
+    other = tmp_path / "cnn-dagger2-observable"
+    other.mkdir()
+    (other / "policy.toml").write_text("")
+    with pytest.raises(ValueError, match="no DAgger run shipped"):
+        ship_target(pattern, 2)
+    (other / "ITERATION").write_text("2\n")
+    assert ship_target(pattern, 2) == other
