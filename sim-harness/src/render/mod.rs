@@ -31,7 +31,7 @@ use pipelines::{Pipelines, READ_TWICE};
 use target::{CameraTarget, camera_target};
 
 pub use clean_twin::CleanTwin;
-pub use scene::{Mesh, Vertex, ball_mesh, static_scene, static_scene_in};
+pub use scene::{Mesh, StaticScene, Vertex, ball_mesh, static_scene, static_scene_in};
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -98,6 +98,21 @@ struct GpuMesh {
     vertices: u32,
 }
 
+/// The static scene on the device: what stands, then the ground's layers from `ground_start`.
+struct GpuScene {
+    mesh: GpuMesh,
+    ground_start: u32,
+}
+
+impl GpuScene {
+    fn upload(device: &wgpu::Device, scene: &StaticScene) -> Self {
+        Self {
+            mesh: upload(device, "static scene", &scene.mesh),
+            ground_start: scene.ground_start as u32,
+        }
+    }
+}
+
 /// Renders both cameras; built once, used for every frame.
 pub struct Renderer {
     device: wgpu::Device,
@@ -107,7 +122,7 @@ pub struct Renderer {
     field: FieldGeometry,
     goal_depth: f32,
     cameras: CameraGeometry,
-    static_mesh: GpuMesh,
+    static_scene: GpuScene,
     ball_mesh: GpuMesh,
     models: wgpu::Buffer,
     model_group: wgpu::BindGroup,
@@ -177,7 +192,7 @@ impl Renderer {
             &[light.as_entire_binding(), light.as_entire_binding()],
         );
 
-        let static_mesh = upload(&device, "static scene", &static_scene(field, goal_depth));
+        let static_scene = GpuScene::upload(&device, &static_scene(field, goal_depth));
         let ball_mesh = upload(&device, "ball", &ball_mesh(field.ball_diameter / 2.0));
         let models = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("models"),
@@ -214,7 +229,7 @@ impl Renderer {
             field: *field,
             goal_depth,
             cameras: *cameras,
-            static_mesh,
+            static_scene,
             ball_mesh,
             models,
             model_group,
@@ -246,8 +261,8 @@ impl Renderer {
     /// after a call with a clean look, frames are the paper's clean render.
     pub fn begin_episode(&mut self, look: &EpisodeLook) {
         if look.layout != self.look.layout {
-            let mesh = static_scene_in(&self.field, self.goal_depth, &look.layout);
-            self.static_mesh = upload(&self.device, "static scene", &mesh);
+            let scene = static_scene_in(&self.field, self.goal_depth, &look.layout);
+            self.static_scene = GpuScene::upload(&self.device, &scene);
         }
         if let Some(sun) = &look.layout.sunlight {
             let mut uniform = LightUniform {
@@ -418,17 +433,24 @@ impl Renderer {
                 }),
                 ..Default::default()
             });
-            if lit {
-                pass.set_pipeline(&self.pipelines.lit);
-                pass.set_bind_group(2, &self.light_group, &[]);
+            let (standing, ground) = if lit {
+                (&self.pipelines.lit, &self.pipelines.lit_ground)
             } else {
-                pass.set_pipeline(&self.pipelines.scene);
+                (&self.pipelines.scene, &self.pipelines.ground)
+            };
+            pass.set_pipeline(standing);
+            if lit {
+                pass.set_bind_group(2, &self.light_group, &[]);
             }
             pass.set_bind_group(0, &target.camera_group, &[]);
             pass.set_bind_group(1, &self.model_group, &[0]);
-            pass.set_vertex_buffer(0, self.static_mesh.buffer.slice(..));
-            pass.draw(0..self.static_mesh.vertices, 0..1);
+            let scene = &self.static_scene;
+            pass.set_vertex_buffer(0, scene.mesh.buffer.slice(..));
+            pass.draw(0..scene.ground_start, 0..1);
+            pass.set_pipeline(ground);
+            pass.draw(scene.ground_start..scene.mesh.vertices, 0..1);
             if ball {
+                pass.set_pipeline(standing);
                 pass.set_bind_group(1, &self.model_group, &[UNIFORM_STRIDE as u32]);
                 pass.set_vertex_buffer(0, self.ball_mesh.buffer.slice(..));
                 pass.draw(0..self.ball_mesh.vertices, 0..1);

@@ -21,8 +21,12 @@ pub(super) struct Layouts {
 pub(super) struct Pipelines {
     /// The clean scene: flat colours, soft light (`scene.wgsl`).
     pub(super) scene: wgpu::RenderPipeline,
+    /// The same for the ground's layers, drawn last with a strict depth test (`StaticScene`).
+    pub(super) ground: wgpu::RenderPipeline,
     /// The scene under a directional light with shadows and bright spots (`scene_lit.wgsl`).
     pub(super) lit: wgpu::RenderPipeline,
+    /// The same for the ground's layers.
+    pub(super) lit_ground: wgpu::RenderPipeline,
     /// The resolved image packed into YUYV (`yuyv.wgsl`).
     pub(super) pack: wgpu::ComputePipeline,
     /// The resolved image in linear light, for the effects (`linear_light.wgsl`).
@@ -36,12 +40,12 @@ impl Pipelines {
     pub(super) fn new(device: &wgpu::Device) -> (Layouts, Self) {
         let camera_layout = uniform_layout(device, "camera", false);
         let model_layout = uniform_layout(device, "model", true);
-        let scene_pipeline = render_pipeline(
-            device,
-            "scene",
-            include_str!("scene.wgsl"),
-            &[&camera_layout, &model_layout],
-        );
+        let scene_layouts = [&camera_layout, &model_layout];
+        let scene_source = include_str!("scene.wgsl");
+        let scene_pipeline =
+            render_pipeline(device, "scene", scene_source, &scene_layouts, STANDING);
+        let ground_pipeline =
+            render_pipeline(device, "ground", scene_source, &scene_layouts, GROUND);
         let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("light"),
             entries: &read_twice_entries(
@@ -50,12 +54,10 @@ impl Pipelines {
                 size_of::<LightUniform>(),
             ),
         });
-        let lit_pipeline = render_pipeline(
-            device,
-            "lit scene",
-            include_str!("scene_lit.wgsl"),
-            &[&camera_layout, &model_layout, &light_layout],
-        );
+        let lit_layouts = [&camera_layout, &model_layout, &light_layout];
+        let lit_source = include_str!("scene_lit.wgsl");
+        let lit_pipeline = render_pipeline(device, "lit scene", lit_source, &lit_layouts, STANDING);
+        let lit_ground = render_pipeline(device, "lit ground", lit_source, &lit_layouts, GROUND);
         let [effects_uniform, effects_storage] =
             read_twice_entries(2, wgpu::ShaderStages::COMPUTE, size_of::<CameraEffects>());
         let effects_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -122,7 +124,9 @@ impl Pipelines {
         };
         let pipelines = Self {
             scene: scene_pipeline,
+            ground: ground_pipeline,
             lit: lit_pipeline,
+            lit_ground,
             pack: pack_pipeline,
             linear: linear_pipeline,
             effects: effects_pipeline,
@@ -151,11 +155,18 @@ pub(super) fn uniform_layout(
     })
 }
 
+/// The depth test of what stands on the ground (and the ball): a later surface at the same
+/// depth wins.
+const STANDING: wgpu::CompareFunction = wgpu::CompareFunction::LessEqual;
+/// The depth test of the ground's layers, drawn last: a surface drawn before keeps a tie.
+const GROUND: wgpu::CompareFunction = wgpu::CompareFunction::Less;
+
 pub(super) fn render_pipeline(
     device: &wgpu::Device,
     label: &str,
     source: &str,
     layouts: &[&wgpu::BindGroupLayout],
+    depth_compare: wgpu::CompareFunction,
 ) -> wgpu::RenderPipeline {
     let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
@@ -187,7 +198,7 @@ pub(super) fn render_pipeline(
         depth_stencil: Some(wgpu::DepthStencilState {
             format: DEPTH_FORMAT,
             depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::LessEqual),
+            depth_compare: Some(depth_compare),
             stencil: Default::default(),
             bias: Default::default(),
         }),

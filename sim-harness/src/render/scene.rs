@@ -165,21 +165,40 @@ impl Mesh {
     }
 }
 
+/// Everything that never moves: what stands on the ground and, after it, the ground's layers
+/// (carpet, then the floor it lies on), which the renderer draws last with a strict depth
+/// test (`Pipelines::ground`).
+///
+/// Why last: drawn after what stands on them, their hidden fragments fail the depth test
+/// before they are shaded and written, and on lavapipe a frame's cost is mostly shading and
+/// writing samples (the floor lies under the whole carpet). Why strict: where a layer's depth
+/// ties with another surface's (where a wall or a post meets it), the surface drawn first
+/// keeps the sample, as when the layers were drawn first and the rest passed on `LessEqual`;
+/// every other sample's nearest surface does not depend on the order. So the frames are the
+/// same, bit for bit, as with the layers drawn first.
+#[derive(Clone, Debug, Default)]
+pub struct StaticScene {
+    pub mesh: Mesh,
+    /// The first vertex of the ground's layers.
+    pub ground_start: usize,
+}
+
 /// Everything that never moves, in the paper's arena.
-pub fn static_scene(field: &FieldGeometry, goal_depth: f32) -> Mesh {
+pub fn static_scene(field: &FieldGeometry, goal_depth: f32) -> StaticScene {
     static_scene_in(field, goal_depth, &VenueLayout::standard())
 }
 
 /// Everything that never moves, in the venue of `layout` (the paper's arena, vertex for
 /// vertex, when it is the standard one).
-pub fn static_scene_in(field: &FieldGeometry, goal_depth: f32, layout: &VenueLayout) -> Mesh {
+pub fn static_scene_in(
+    field: &FieldGeometry,
+    goal_depth: f32,
+    layout: &VenueLayout,
+) -> StaticScene {
     let mut mesh = Mesh::default();
     let (hl, hw) = (field.length / 2.0, field.width / 2.0);
     let (cl, cw) = (hl + field.border, hw + field.border);
     let lw = field.line_width;
-
-    mesh.ground_rect(Vec2::new(-14.0, -11.0), Vec2::new(14.0, 11.0), 0.0, FLOOR);
-    mesh.ground_rect(Vec2::new(-cl, -cw), Vec2::new(cl, cw), CARPET_Z, CARPET);
 
     // Lines: the outer edges of the boundary lines lie on the field's dimensions.
     let inset = lw / 2.0;
@@ -223,7 +242,11 @@ pub fn static_scene_in(field: &FieldGeometry, goal_depth: f32, layout: &VenueLay
     for figure in &layout.figures {
         add_figure(&mut mesh, figure);
     }
-    mesh
+    // The ground's layers last, the carpet before the floor (StaticScene says why).
+    let ground_start = mesh.vertices.len();
+    mesh.ground_rect(Vec2::new(-cl, -cw), Vec2::new(cl, cw), CARPET_Z, CARPET);
+    mesh.ground_rect(Vec2::new(-14.0, -11.0), Vec2::new(14.0, 11.0), 0.0, FLOOR);
+    StaticScene { mesh, ground_start }
 }
 
 fn add_goal(mesh: &mut Mesh, field: &FieldGeometry, side: f32, depth: f32) {
