@@ -16,7 +16,11 @@ SOAKS = REPOSITORY / "cross" / "soak"
 
 
 def verdict(run: dict) -> str:
-    """"passed", or what failed, by the criteria the run was held to."""
+    """"passed", or what failed: the soak's own account (`failures` in soak.json, every
+    criterion `dribble soak` found missed), or for a run written before soak.json held it,
+    the same criteria applied to its figures."""
+    if "failures" in run:
+        return "failed: " + "; ".join(run["failures"]) if run["failures"] else "passed"
     limits = run["limits"]
     failed = []
     if run["lost"]:

@@ -36,6 +36,15 @@ def test_a_clean_hour_passes_and_each_broken_criterion_is_named():
     assert soak_report.verdict(refused) == "failed: fault second_controller"
 
 
+def test_the_soaks_own_account_is_the_verdict_where_soak_json_holds_it():
+    # Written by `dribble soak` since it records its failures: they are the verdict, even
+    # where the figures alone would say otherwise (a criterion the page does not re-state).
+    assert soak_report.verdict(_run(failures=[])) == "passed"
+    both = ["2 commands lost", "open files grew from 56 to 57"]
+    assert soak_report.verdict(_run(failures=both)) == "failed: 2 commands lost; open files grew from 56 to 57"
+    assert soak_report.verdict(_run(lost=0, failures=["no command arrived"])) == "failed: no command arrived"
+
+
 def test_the_page_has_a_row_and_a_plot_per_published_run(tmp_path):
     (tmp_path / "ssse3.json").write_text(json.dumps(_run()))
     (tmp_path / "ssse3.png").write_bytes(b"png")

@@ -171,7 +171,9 @@ pub(crate) fn summarise(
             serde_json::Value::Null
         }
     };
+    let failures = failures(args, &totals, missed_share, growth, files, faults);
     let summary = json!({
+        "failures": failures,
         "faults": fault_json,
         "controller_statistics": controller_statistics,
         "policy": args.policy,
@@ -202,7 +204,6 @@ pub(crate) fn summarise(
         args.out.join("soak.csv").display(),
         summary_path.display()
     );
-    let failures = failures(args, &totals, missed_share, growth, files, faults);
     if !failures.is_empty() {
         bail!("soak failed: {}", failures.join("; "));
     }
