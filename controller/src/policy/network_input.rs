@@ -40,9 +40,18 @@ fn standardisation(pixels: &[u8]) -> (f32, f32) {
         return (0.0, 1.0 / STANDARDISE_FLOOR_LEVELS);
     }
     let (mut sum, mut squares) = (0u64, 0u64);
-    for &pixel in pixels {
-        sum += u64::from(pixel);
-        squares += u64::from(pixel) * u64::from(pixel);
+    // 32-bit sums over chunks whose squares cannot overflow them (255^2 * 65,536 < 2^32),
+    // which the compiler turns into vector code on every target (64-bit additions in the
+    // loop cost a carry chain a pixel on the V5's 32-bit build); exact, like the u64 sums.
+    for chunk in pixels.chunks(1 << 16) {
+        let (mut chunk_sum, mut chunk_squares) = (0u32, 0u32);
+        for &pixel in chunk {
+            let pixel = u32::from(pixel);
+            chunk_sum += pixel;
+            chunk_squares += pixel * pixel;
+        }
+        sum += u64::from(chunk_sum);
+        squares += u64::from(chunk_squares);
     }
     let count = pixels.len() as f64;
     let mean = sum as f64 / count;
@@ -101,6 +110,22 @@ mod tests {
         for (x, y) in a.iter().zip(&b) {
             assert!((x - y).abs() < 1e-5, "{x} against {y}");
         }
+    }
+
+    #[test]
+    fn the_sums_are_exact_past_a_chunk_of_white_pixels() {
+        // Three chunks and a bit of 255s and a 0: 32-bit squares of a whole image would
+        // overflow; the chunked sums give the 64-bit reference's mean and spread.
+        let mut pixels = vec![255u8; 3 * (1 << 16) + 5];
+        pixels[7] = 0;
+        let (mean, inverse_spread) = standardisation(&pixels);
+        let n = pixels.len() as f64;
+        let reference_mean = 255.0 * (n - 1.0) / n;
+        let reference_spread = (255.0f64 * 255.0 * (n - 1.0) / n - reference_mean * reference_mean)
+            .sqrt()
+            .max(4.0);
+        assert_eq!(mean, reference_mean as f32);
+        assert_eq!(inverse_spread, (1.0 / reference_spread) as f32);
     }
 
     #[test]
