@@ -39,6 +39,7 @@ from .shipping_rules import (
     V6_TICK_BUDGET,
     Candidate,
     chosen_seeds,
+    conditions_rule,
     int8_quality,
     pipeline_tick_ms,
     read_selection,
@@ -169,7 +170,8 @@ def failure_analysis(rows: list[dict]) -> str:
 
 #: The rows of the committed table, in order: the paper's setup, then what goes beyond it
 #: (the narrow CNN: the paper's layers with fewer filters, for the V5's tick; the orbiting
-#: teacher's CNN and its DAgger); last the
+#: teacher's CNN and its DAgger; issue 48's robust student, standardised and trained under
+#: randomized conditions, and its robot-sized student); last the
 #: int8 policies the robot package chooses from (`robot_policy`; their selection runs are in
 #: models/selection, so they are no candidates for the shipped row).
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-24-epochs", "cnn-modal", "cnn-modal-dagger4",
@@ -178,8 +180,10 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-24-epochs", "cnn-modal", "cnn-modal-dagger4
         "cnn-4-16-4-8-distilled-dagger2-observable", "cnn-dagger1-observable", "cnn-dagger2-observable",
         "rcnn-memory-dagger1-observable",
         "cnn-orbit", "cnn-dagger{iteration}-orbit",
+        "cnn-conditions-distilled-clean", "cnn-conditions-4-16-4-8",
         "cnn-dagger1-observable-int8", "cnn-8-16-4-8-distilled-dagger1-observable-int8", "cnn-dagger2-observable-int8",
-        "cnn-8-16-4-8-distilled-dagger2-observable-int8", "cnn-4-16-4-8-distilled-dagger2-observable-int8")
+        "cnn-8-16-4-8-distilled-dagger2-observable-int8", "cnn-4-16-4-8-distilled-dagger2-observable-int8",
+        "cnn-conditions-4-16-4-8-int8")
 
 
 def row_directories(models: Path, name: str) -> list[Path]:
@@ -336,6 +340,15 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     if args.out:
         args.out.write_text(text)
+    # The choice first: the status table names what it chose.
+    if args.choose and rows:
+        chosen = choose(rows)
+        args.choose.write_text(Path(chosen["directory"]).name + "\n")
+        print(f"shipped: {chosen['directory']} ({chosen['selection']})")
+        if args.robot:
+            name, reason = robot_policy(Path(chosen["directory"]))
+            args.robot.write_text(name + "\n")
+            print(f"robot package: {name} ({reason})")
     if args.readme:
         tables = generated_tables(rows)
         # Tables other scripts write: the DAgger iterations' (scripts/dagger, dagger_report)
@@ -372,32 +385,27 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         for path in args.readme:
             path.write_text(texts[str(path)])
-    if args.choose and rows:
-        chosen = choose(rows)
-        args.choose.write_text(Path(chosen["directory"]).name + "\n")
-        print(f"shipped: {chosen['directory']} ({chosen['selection']})")
-        if args.robot:
-            name, reason = robot_policy(Path(chosen["directory"]))
-            args.robot.write_text(name + "\n")
-            print(f"robot package: {name} ({reason})")
     return 0
 
 
 def choose(rows: list[dict]) -> dict:
-    """The shipped row, by the one rule of `shipping_rules.choose` on each row's select.json.
-    Never the test episodes: they are for reporting only."""
+    """The shipped row, by the one rule of `shipping_rules.choose` on each row's select.json
+    and, where it has one, select_randomized.json. Never the test episodes: they are for
+    reporting only."""
     candidates = {
         Path(row["directory"]).name: Candidate(
             name=Path(row["directory"]).name,
             selection=read_selection(Path(row["directory"]) / "select.json"),
             validation_error=row["training"].get("validation_error"),
+            randomized=read_selection(Path(row["directory"]) / "select_randomized.json"),
         )
         for row in rows
     }
     chosen = choose_candidate(list(candidates.values()))
     seeds = chosen_seeds(list(candidates.values()))
+    conditions = conditions_rule(list(candidates.values()), seeds)
     for row in rows:
-        row["selection"] = candidates[Path(row["directory"]).name].reason(seeds)
+        row["selection"] = candidates[Path(row["directory"]).name].reason(seeds, conditions)
     return next(row for row in rows if Path(row["directory"]).name == chosen.name)
 
 
@@ -412,12 +420,12 @@ def tick_cell(directory: Path, build: str) -> str:
     where `cross/cycles` profiled these networks the slow end of the pipeline model's estimate
     (what the robot package's rule judges by: `shipping_rules.tick_fit`)."""
     instructions = recorded_tick(directory, build)
+    pipeline = pipeline_tick_ms(directory, build)
     if instructions is None:
-        return "not counted"
+        return "not counted" if pipeline is None else f"pipeline model up to {pipeline:.2f} ms"
     clock, (low, high) = (V5_CLOCK_HZ, V5_PER_CYCLE) if build == "v5" else (V6_CLOCK_HZ, V6_PER_CYCLE)
     fast, slow = instructions / (high * clock) * 1e3, instructions / (low * clock) * 1e3
     cell = f"{instructions:,} instructions ({fast:.2f}-{slow:.2f} ms)"
-    pipeline = pipeline_tick_ms(directory, build)
     return cell if pipeline is None else f"{cell}; pipeline model up to {pipeline:.2f} ms"
 
 

@@ -7,6 +7,13 @@ validation error. The selection episodes are training seeds held out from fittin
 selection seeds 20000..20049 (shared/DESIGN.md, "Metrics"); test seeds (10000..10019,
 30000..30099) are for reporting only, and a `select.json` that holds one is refused.
 
+Under the conditions a field brings (issue 48): where any candidate was also played on the
+chosen seeds under randomized conditions (`select_randomized.json`, each episode its own
+camera, light and venue drawn from its seed), the goals counted are clean and randomized
+together, so a model that scores clean but not under a real camera no longer wins on clean
+play alone; a candidate without that run is then ranked after every candidate with it, and
+the reason says so.
+
 The choice is made on one set of seeds: the largest any candidate was evaluated on (the
 selection seeds 20000..20049 once they are run; the retired 90..99 before). A candidate
 without a `select.json`, or with one on other seeds, is ranked after every candidate on the
@@ -63,19 +70,33 @@ def read_selection(path: Path) -> Selection | None:
 
 @dataclass(frozen=True)
 class Candidate:
-    """One model that may be chosen: a name, its selection run, its validation error."""
+    """One model that may be chosen: a name, its selection run (clean), its run on the same
+    seeds under randomized conditions where it has one, its validation error."""
 
     name: str
     selection: Selection | None
     validation_error: float | None
+    randomized: Selection | None = None
 
-    def key(self, seeds: tuple[int, ...] | None = None) -> tuple:
-        counted = self.selection is not None and (seeds is None or self.selection.seeds == seeds)
-        goals = self.selection.goals if counted else -1
+    def on(self, seeds: tuple[int, ...] | None) -> bool:
+        """Whether its clean selection run is on `seeds` (any seeds where None)."""
+        return self.selection is not None and (seeds is None or self.selection.seeds == seeds)
+
+    def randomized_on(self, seeds: tuple[int, ...] | None) -> bool:
+        """Whether it was also played on the same seeds under randomized conditions."""
+        return self.on(seeds) and self.randomized is not None and self.randomized.seeds == self.selection.seeds
+
+    def key(self, seeds: tuple[int, ...] | None = None, conditions: bool = False) -> tuple:
+        """Its rank: goals (clean, plus randomized under the conditions rule; -1 where its runs
+        cannot be counted), then the validation error, then the name."""
+        if conditions:
+            goals = self.selection.goals + self.randomized.goals if self.randomized_on(seeds) else -1
+        else:
+            goals = self.selection.goals if self.on(seeds) else -1
         validation = self.validation_error if self.validation_error is not None else math.inf
         return (-goals, validation, self.name)
 
-    def reason(self, seeds: tuple[int, ...] | None = None) -> str:
+    def reason(self, seeds: tuple[int, ...] | None = None, conditions: bool = False) -> str:
         validation = "no validation error" if self.validation_error is None else f"validation error {self.validation_error:.3f}"
         if self.selection is None:
             return f"no selection run (select.json), {validation}"
@@ -84,7 +105,15 @@ class Candidate:
                 f"selection run on seeds {describe(self.selection.seeds)}, not the chosen set {describe(seeds)}: "
                 f"ranked last until run again, {validation}"
             )
-        return f"{self.selection.goals} goals in {self.selection.episodes} selection episodes, {validation}"
+        clean = f"{self.selection.goals} goals in {self.selection.episodes} selection episodes"
+        if not conditions:
+            return f"{clean}, {validation}"
+        if not self.randomized_on(seeds):
+            return f"{clean}, no run on them under randomized conditions (select_randomized.json): ranked last until played so, {validation}"
+        return (
+            f"{clean} clean and {self.randomized.goals} under randomized conditions "
+            f"({self.selection.goals + self.randomized.goals} of {2 * self.selection.episodes}), {validation}"
+        )
 
 
 def describe(seeds: tuple[int, ...]) -> str:
@@ -98,17 +127,27 @@ def chosen_seeds(candidates: list[Candidate]) -> tuple[int, ...] | None:
     return max(sets, key=lambda s: (len(s), s)) if sets else None
 
 
+def conditions_rule(candidates: list[Candidate], seeds: tuple[int, ...] | None) -> bool:
+    """Whether the choice counts randomized goals too: some candidate was played on `seeds`
+    under randomized conditions."""
+    return any(c.randomized_on(seeds) for c in candidates)
+
+
 def choose(candidates: list[Candidate]) -> Candidate:
-    """Most selection goals on the chosen seed set, then the lowest validation error, then
-    the name (so a tie is decided the same way every time)."""
+    """Most selection goals on the chosen seed set (clean and under randomized conditions
+    together where `conditions_rule` holds), then the lowest validation error, then the name
+    (so a tie is decided the same way every time)."""
     if not candidates:
         raise SelectionError("nothing to choose from")
     seeds = chosen_seeds(candidates)
-    engines = {c.selection.engine for c in candidates if c.selection is not None and c.selection.seeds == seeds}
-    if len(engines) > 1:
-        described = "; ".join(f"{c.name}: {c.selection.engine}" for c in candidates if c.selection is not None and c.selection.seeds == seeds)
+    conditions = conditions_rule(candidates, seeds)
+    runs = [(c.name, c.selection) for c in candidates if c.on(seeds)]
+    if conditions:
+        runs += [(c.name, c.randomized) for c in candidates if c.randomized_on(seeds)]
+    if len({run.engine for _, run in runs}) > 1:
+        described = "; ".join(f"{name}: {run.engine}" for name, run in runs)
         raise SelectionError(f"the candidates' selection runs on {describe(seeds)} were run by different engines, run them again with one: {described}")
-    return min(candidates, key=lambda c: c.key(seeds))
+    return min(candidates, key=lambda c: c.key(seeds, conditions))
 
 
 def read_json(path: Path) -> dict | None:
@@ -196,13 +235,16 @@ def scored_validation_error(directory: Path, own_score_needed: bool = False) -> 
     return None if own_score_needed else training.get("validation_error")
 
 
-def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
+def int8_quality(twin: Path, shipped_run, shipped_randomized=None) -> tuple[bool, str, int]:
     """Whether the int8 policy `twin` keeps the quality (issue 29's gate, on choosing data only,
     issue 48) and what was measured: quantized from exactly the networks of its float model
     (`<name>` without `-int8`, beside it), its error on the validation episodes at most 0.01
     above that model's, and its goals on the shipped model's selection seeds (its run in
     models/selection/<twin>.json) not below the lower end of the shipped model's Wilson 95 %
-    interval there. The test and fresh seeds take no part."""
+    interval there; where the shipped model was chosen under randomized conditions too
+    (`shipped_randomized`), the same of its run under them (models/selection/<twin>-randomized.json).
+    The goals returned are those counted (clean, plus randomized where asked). The test and
+    fresh seeds take no part."""
     original = twin.parent / twin.name.removesuffix("-int8")
     if not (twin / "policy.toml").is_file() or not (original / "policy.toml").is_file():
         return False, f"no float model {original.name} beside it", 0
@@ -213,7 +255,8 @@ def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
     errors = (scored_validation_error(twin, own_score_needed=True), scored_validation_error(original))
     if None in errors:
         return False, "a validation score on the manifest's validation seeds is missing (score_validation.json)", 0
-    run = read_selection(twin.parent.parent / "selection" / f"{twin.name}.json")
+    selection = twin.parent.parent / "selection"
+    run = read_selection(selection / f"{twin.name}.json")
     if run is None or shipped_run is None or run.seeds != shipped_run.seeds:
         return False, "no selection run on the shipped model's seeds", 0
     low, _ = wilson(shipped_run.goals, shipped_run.episodes)
@@ -222,7 +265,19 @@ def int8_quality(twin: Path, shipped_run) -> tuple[bool, str, int]:
         f"selection goals against the shipped model's {shipped_run.goals} / {shipped_run.episodes} (interval from {low:.2f})"
     )
     kept = errors[0] <= errors[1] + INT8_ERROR_MARGIN and run.goals >= low * run.episodes
-    return kept, measured, run.goals
+    goals = run.goals
+    if shipped_randomized is not None:
+        randomized = read_selection(selection / f"{twin.name}-randomized.json")
+        if randomized is None or randomized.seeds != shipped_randomized.seeds:
+            return False, f"{measured}; no run on those seeds under randomized conditions", 0
+        low, _ = wilson(shipped_randomized.goals, shipped_randomized.episodes)
+        measured += (
+            f"; under randomized conditions {randomized.goals} / {randomized.episodes} against "
+            f"{shipped_randomized.goals} / {shipped_randomized.episodes} (interval from {low:.2f})"
+        )
+        kept = kept and randomized.goals >= low * randomized.episodes
+        goals += randomized.goals
+    return kept, measured, goals
 
 
 def robot_policy(shipped: Path) -> tuple[str, str]:
@@ -231,7 +286,8 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     Candidates are the int8 policies beside the shipped model (`<float model>-int8`, made by
     dribble_models.quantize from exactly that float model's networks) that keep the quality
     (`int8_quality`: validation error, and goals on the shipped model's selection seeds against
-    the shipped model's interval). Of those whose V5 tick fits its budget (`tick_fit`: the
+    the shipped model's interval, under randomized conditions too where the shipped model has
+    such a run). Of those whose V5 tick fits its budget (`tick_fit`: the
     pipeline model's slow end where `cross/cycles` profiled the networks, else the recorded
     instruction count against `V5_TICK_BUDGET`), the ones whose V6 tick fits too come first
     (the package runs on both robots), then the most selection goals, then the shortest V5
@@ -239,9 +295,13 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     the shipped model. The choice reads the selection seeds only: closed loops on test seeds take no part;
     the robot policy's are reported beside it."""
     shipped_run = read_selection(shipped / "select.json")
+    # Chosen under randomized conditions too: the robot's policy is held to both runs.
+    shipped_randomized = read_selection(shipped / "select_randomized.json")
+    if shipped_run is None or shipped_randomized is None or shipped_randomized.seeds != shipped_run.seeds:
+        shipped_randomized = None
     fitting = []
     for twin in sorted(shipped.parent.glob("*-int8")):
-        kept, measured, goals = int8_quality(twin, shipped_run)
+        kept, measured, goals = int8_quality(twin, shipped_run, shipped_randomized)
         v5 = tick_fit(twin, "v5")
         if kept and v5 is not None and v5[0]:
             v6 = tick_fit(twin, "v6")
@@ -255,7 +315,7 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     twin = shipped.parent / f"{shipped.name}-int8"
     if not (twin / "policy.toml").is_file():
         return shipped.name, f"no int8 policy fits the V5 tick and keeps the quality, and there is no int8 twin {twin}"
-    kept, measured, _ = int8_quality(twin, shipped_run)
+    kept, measured, _ = int8_quality(twin, shipped_run, shipped_randomized)
     if not kept:
         return shipped.name, f"{twin.name} does not keep the quality: {measured}"
     return twin.name, f"no int8 policy fits the V5 tick and keeps the quality; the shipped model's twin does: {measured}"

@@ -182,6 +182,34 @@ def test_the_robot_carries_an_int8_policy_that_fits_the_v5_tick_where_one_keeps_
     assert shipping_rules.robot_policy(shipped)[0] == "best-int8"
 
 
+def test_a_model_chosen_under_randomized_conditions_holds_the_robots_policy_to_them_too(tmp_path):
+    models = tmp_path / "policy"
+    shipped, narrow = _shipped_and_narrow(models)
+    twin = models / "narrow-int8"
+    _policy(twin, 0.125, [hashlib.sha256(b"narrow").hexdigest()])
+    _selection(tmp_path / "selection" / "narrow-int8.json", 42)
+    _tick(twin, 1_000_000)
+    assert shipping_rules.robot_policy(shipped)[0] == "narrow-int8"
+    # The shipped model also played the seeds under randomized conditions (41 of 50, interval
+    # from 0.69: 34.4 goals): the twin needs such a run, and at least 35 goals in it.
+    _selection(shipped / "select_randomized.json", 41)
+    assert shipping_rules.robot_policy(shipped)[0] == "best"
+    shipped_run = shipping_rules.read_selection(shipped / "select.json")
+    shipped_randomized = shipping_rules.read_selection(shipped / "select_randomized.json")
+    kept, why, _ = shipping_rules.int8_quality(twin, shipped_run, shipped_randomized)
+    assert not kept and "no run on those seeds under randomized conditions" in why
+    for goals, chosen in ((35, "narrow-int8"), (34, "best")):
+        _selection(tmp_path / "selection" / "narrow-int8-randomized.json", goals)
+        assert shipping_rules.robot_policy(shipped)[0] == chosen, goals
+    _selection(tmp_path / "selection" / "narrow-int8-randomized.json", 35)
+    name, why = shipping_rules.robot_policy(shipped)
+    assert "under randomized conditions 35 / 50 against 41 / 50" in why
+    # A shipped randomized run on other seeds than its clean one is no such run.
+    _selection(shipped / "select_randomized.json", 50, first=20050)
+    _selection(tmp_path / "selection" / "narrow-int8-randomized.json", 0)
+    assert shipping_rules.robot_policy(shipped)[0] == "narrow-int8"
+
+
 def test_the_committed_robot_policy_is_the_rules():
     models = REPOSITORY / "models" / "policy"
     shipped = models / (models / "HOST_MODEL").read_text().strip()
@@ -243,3 +271,16 @@ def test_the_pipeline_models_slow_end_judges_the_tick_where_the_networks_were_pr
     (models / "narrow-int8" / "policy.onnx").write_bytes(b"retrained")
     _tick(models / "narrow-int8", 1_000_000)
     assert shipping_rules.robot_policy(shipped)[1].count("instructions of") == 1
+
+
+def test_the_status_tables_tick_is_the_pipeline_models_where_no_flat_count_was_recorded(tmp_path):
+    models = tmp_path / "policy"
+    _policy(models / "narrow-int8", 0.125, [hashlib.sha256(b"narrow").hexdigest()])
+    assert results.tick_cell(models / "narrow-int8", "v5") == "not counted"
+    # 1,600,000 cycles at 1.6 GHz with p10 0.0: 1.00 ms.
+    _profile(models, "narrow-int8", "v5", 1_600_000, 1.6, 0.0)
+    assert results.tick_cell(models / "narrow-int8", "v5") == "pipeline model up to 1.00 ms"
+    _tick(models / "narrow-int8", 1_120_000)
+    assert results.tick_cell(models / "narrow-int8", "v5") == (
+        "1,120,000 instructions (0.70-1.00 ms); pipeline model up to 1.00 ms"
+    )

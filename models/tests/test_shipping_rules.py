@@ -81,6 +81,35 @@ def test_runs_by_different_engines_on_the_same_seeds_are_refused(tmp_path):
         choose([Candidate("a", a, 0.1), Candidate("b", b, 0.1)])
 
 
+def test_under_randomized_conditions_clean_and_randomized_goals_count_together(tmp_path):
+    seeds = range(20000, 20010)
+
+    def row(name, clean, randomized, validation):
+        directory = tmp_path / name
+        write_run(directory / "select.json", seeds, set(seeds[:clean]))
+        if randomized is not None:
+            write_run(directory / "select_randomized.json", seeds, set(seeds[:randomized]))
+        return {"directory": str(directory), "training": {"validation_error": validation}}
+
+    # Clean only, "clean-best" wins; once any candidate was played under randomized conditions
+    # the goals of both runs count: "robust" (7 + 7) over "clean-best" (9 + 2), and "unplayed",
+    # however many clean goals it has, ranks last until it is played so.
+    rows = [row("clean-best", 9, None, 0.1), row("robust", 7, None, 0.2)]
+    assert Path(results.choose(rows)["directory"]).name == "clean-best"
+    rows = [row("clean-best", 9, 2, 0.1), row("robust", 7, 7, 0.2), row("unplayed", 10, None, 0.05)]
+    assert Path(results.choose(rows)["directory"]).name == "robust"
+    assert "7 goals in 10 selection episodes clean and 7 under randomized conditions (14 of 20)" in rows[1]["selection"]
+    assert "ranked last until played so" in rows[2]["selection"]
+    # A randomized run on other seeds than the clean one does not count.
+    write_run(tmp_path / "robust" / "select_randomized.json", range(20010, 20020), set(range(20010, 20020)))
+    assert Path(results.choose(rows)["directory"]).name == "clean-best"
+    # Nor does one by another engine: refused, as for clean runs.
+    path = write_run(tmp_path / "robust" / "select_randomized.json", seeds, set(seeds))
+    path.write_text(path.read_text().replace("compiled (avx2+fma)", "tract"))
+    with pytest.raises(SelectionError, match="different engines"):
+        results.choose(rows)
+
+
 def test_the_committed_choice_follows_the_rule():
     """models/policy/HOST_MODEL is what the rule picks from the committed rows."""
     policy = Path(__file__).resolve().parents[1] / "policy"
