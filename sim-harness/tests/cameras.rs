@@ -125,46 +125,51 @@ fn the_ball_appears_where_the_pinhole_model_puts_it_in_both_cameras() {
     }
 }
 
-fn frame_hash<const W: usize, const H: usize>(frame: &CameraFrame<W, H>) -> u64 {
-    let mut hasher = DefaultHasher::new();
-    frame.as_bytes().hash(&mut hasher);
-    hasher.finish()
-}
-
-/// Walks an episode for a second and hashes every frame the cameras deliver.
-fn episode_frame_hashes(seed: u64) -> Vec<u64> {
+/// Walks the first second of `seed` under `conditions` and hands every frame the cameras
+/// deliver, as bytes, to `frame`; returns the adapter that drew them.
+fn walk_first_second(seed: u64, conditions: &str, mut frame: impl FnMut(&[u8])) -> String {
+    let conditions: Conditions = conditions.parse().expect("conditions");
     let mut renderer = renderer();
+    renderer.begin_episode(&conditions.resolve(seed));
     let mut simulation = Simulation::new(
-        &EpisodeSetup::from_seed(seed),
+        &EpisodeSetup::from_seed(seed).under(conditions),
         WorldConfig::default(),
         WalkConfig::default(),
         CameraGeometry::nao(),
     );
     simulation.set_command(SpeedCommand::new(0.8, 0.2, 0.4).expect("finite"));
     let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
-    let mut hashes = Vec::new();
     for _ in 0..300 {
         let Some(position) = simulation.step() else {
             continue;
         };
-        let camera = simulation.camera(position);
-        let scene = simulation.scene();
-        let hash = match position {
+        let (camera, scene) = (simulation.camera(position), simulation.scene());
+        match position {
             CameraPosition::Top => {
                 renderer
                     .render(position, &camera, &scene, &mut top)
                     .expect("render");
-                frame_hash(&top)
+                frame(top.as_bytes());
             }
             CameraPosition::Bottom => {
                 renderer
                     .render(position, &camera, &scene, &mut bottom)
                     .expect("render");
-                frame_hash(&bottom)
+                frame(bottom.as_bytes());
             }
-        };
-        hashes.push(hash);
+        }
     }
+    renderer.adapter().to_owned()
+}
+
+/// Walks an episode for a second and hashes every frame the cameras deliver.
+fn episode_frame_hashes(seed: u64) -> Vec<u64> {
+    let mut hashes = Vec::new();
+    walk_first_second(seed, "clean", |bytes| {
+        let mut hasher = DefaultHasher::new();
+        bytes.hash(&mut hasher);
+        hashes.push(hasher.finish());
+    });
     hashes
 }
 
@@ -179,39 +184,11 @@ fn the_same_seed_renders_identical_frames() {
 }
 
 /// SHA-256 of every frame the cameras deliver in the first second of `seed` under
-/// `conditions`, walking as `episode_frame_hashes` does.
+/// `conditions`, and the adapter that drew them.
 fn episode_frames_sha256(seed: u64, conditions: &str) -> (String, String) {
-    let conditions: Conditions = conditions.parse().expect("conditions");
-    let mut renderer = renderer();
-    renderer.begin_episode(&conditions.resolve(seed));
-    let mut simulation = Simulation::new(
-        &EpisodeSetup::from_seed(seed).under(conditions),
-        WorldConfig::default(),
-        WalkConfig::default(),
-        CameraGeometry::nao(),
-    );
-    simulation.set_command(SpeedCommand::new(0.8, 0.2, 0.4).expect("finite"));
-    let (mut top, mut bottom) = (TopFrame::new_boxed(), BottomFrame::new_boxed());
     let mut bytes = Vec::new();
-    for _ in 0..300 {
-        let Some(position) = simulation.step() else {
-            continue;
-        };
-        let (camera, scene) = (simulation.camera(position), simulation.scene());
-        match position {
-            CameraPosition::Top => {
-                renderer
-                    .render(position, &camera, &scene, &mut top)
-                    .expect("render");
-                bytes.extend_from_slice(top.as_bytes());
-            }
-            CameraPosition::Bottom => {
-                (renderer.render(position, &camera, &scene, &mut bottom)).expect("render");
-                bytes.extend_from_slice(bottom.as_bytes());
-            }
-        }
-    }
-    (sha256_hex(&bytes), renderer.adapter().to_owned())
+    let adapter = walk_first_second(seed, conditions, |frame| bytes.extend_from_slice(frame));
+    (sha256_hex(&bytes), adapter)
 }
 
 /// The adapter the frames below were recorded on (Debian 12's lavapipe, what
