@@ -235,7 +235,9 @@ def scored_validation_error(directory: Path, own_score_needed: bool = False) -> 
     return None if own_score_needed else training.get("validation_error")
 
 
-def int8_quality(twin: Path, shipped_run, shipped_randomized=None) -> tuple[bool, str, int]:
+def int8_quality(
+    twin: Path, shipped_run: Selection | None, shipped_randomized: Selection | None = None
+) -> tuple[bool, str, int]:
     """Whether the int8 policy `twin` keeps the quality (issue 29's gate, on choosing data only,
     issue 48) and what was measured: quantized from exactly the networks of its float model
     (`<name>` without `-int8`, beside it), its error on the validation episodes at most 0.01
@@ -259,25 +261,29 @@ def int8_quality(twin: Path, shipped_run, shipped_randomized=None) -> tuple[bool
     run = read_selection(selection / f"{twin.name}.json")
     if run is None or shipped_run is None or run.seeds != shipped_run.seeds:
         return False, "no selection run on the shipped model's seeds", 0
-    low, _ = wilson(shipped_run.goals, shipped_run.episodes)
+    held, against = within_interval(run, shipped_run)
     measured = (
         f"validation error {errors[0]:.4f} against {original.name}'s {errors[1]:.4f}; {run.goals} / {run.episodes} "
-        f"selection goals against the shipped model's {shipped_run.goals} / {shipped_run.episodes} (interval from {low:.2f})"
+        f"selection goals against the shipped model's {against}"
     )
-    kept = errors[0] <= errors[1] + INT8_ERROR_MARGIN and run.goals >= low * run.episodes
+    kept = errors[0] <= errors[1] + INT8_ERROR_MARGIN and held
     goals = run.goals
     if shipped_randomized is not None:
         randomized = read_selection(selection / f"{twin.name}-randomized.json")
         if randomized is None or randomized.seeds != shipped_randomized.seeds:
             return False, f"{measured}; no run on those seeds under randomized conditions", 0
-        low, _ = wilson(shipped_randomized.goals, shipped_randomized.episodes)
-        measured += (
-            f"; under randomized conditions {randomized.goals} / {randomized.episodes} against "
-            f"{shipped_randomized.goals} / {shipped_randomized.episodes} (interval from {low:.2f})"
-        )
-        kept = kept and randomized.goals >= low * randomized.episodes
+        held, against = within_interval(randomized, shipped_randomized)
+        measured += f"; under randomized conditions {randomized.goals} / {randomized.episodes} against {against}"
+        kept = kept and held
         goals += randomized.goals
     return kept, measured, goals
+
+
+def within_interval(run: Selection, reference: Selection) -> tuple[bool, str]:
+    """Whether `run` scores at least the lower end of `reference`'s Wilson 95 % interval, and
+    the reference in words ("44 / 50 (interval from 0.76)")."""
+    low, _ = wilson(reference.goals, reference.episodes)
+    return run.goals >= low * run.episodes, f"{reference.goals} / {reference.episodes} (interval from {low:.2f})"
 
 
 def robot_policy(shipped: Path) -> tuple[str, str]:
