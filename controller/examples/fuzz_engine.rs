@@ -554,19 +554,15 @@ fn save(
     use prost::Message;
     let _ = std::fs::create_dir_all(findings);
     let _ = std::fs::write(findings.join(format!("{seed}.onnx")), graph.encode_to_vec());
-    let text: String = inputs
-        .iter()
-        .map(|(name, shape)| {
-            format!(
-                "{name} {}\n",
-                shape
-                    .iter()
-                    .map(usize::to_string)
-                    .collect::<Vec<_>>()
-                    .join(" ")
-            )
-        })
-        .collect();
+    // One line an input: its name, then its dimensions.
+    let mut text = String::new();
+    for (name, shape) in inputs {
+        text.push_str(name);
+        for dimension in shape {
+            text.push_str(&format!(" {dimension}"));
+        }
+        text.push('\n');
+    }
     let _ = std::fs::write(findings.join(format!("{seed}.inputs")), text);
     let _ = std::fs::write(findings.join(format!("{seed}.finding")), what);
 }

@@ -61,8 +61,17 @@ impl Default for LinkTimeouts {
 
 /// A controller the simulator drives in lock-step.
 pub trait ControllerLink {
-    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), LinkError>;
-    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), LinkError>;
+    /// The simulator's side of the transport the frames and ticks cross.
+    fn ports(&mut self) -> &mut dyn SimulatorPorts;
+
+    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), LinkError> {
+        Ok(self.ports().publish_top(frame)?)
+    }
+
+    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), LinkError> {
+        Ok(self.ports().publish_bottom(frame)?)
+    }
+
     /// Publishes `tick` and returns the command that answers it.
     fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError>;
 }
@@ -119,12 +128,8 @@ impl ThreadLink {
 }
 
 impl ControllerLink for ThreadLink {
-    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), LinkError> {
-        Ok(self.ports.publish_top(frame)?)
-    }
-
-    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), LinkError> {
-        Ok(self.ports.publish_bottom(frame)?)
+    fn ports(&mut self) -> &mut dyn SimulatorPorts {
+        &mut self.ports
     }
 
     fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError> {
@@ -286,12 +291,8 @@ impl Iceoryx2Link {
 }
 
 impl ControllerLink for Iceoryx2Link {
-    fn publish_top(&mut self, frame: &TopFrame) -> Result<(), LinkError> {
-        Ok(self.ports.publish_top(frame)?)
-    }
-
-    fn publish_bottom(&mut self, frame: &BottomFrame) -> Result<(), LinkError> {
-        Ok(self.ports.publish_bottom(frame)?)
+    fn ports(&mut self) -> &mut dyn SimulatorPorts {
+        &mut self.ports
     }
 
     fn exchange(&mut self, tick: &LockStepTick) -> Result<MotionCommand, LinkError> {

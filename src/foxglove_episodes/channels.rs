@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use anyhow::Context as _;
 use dribble_controller::thumbnail::downscale;
-use dribble_controller::{CameraFrame, Thumbnail, Timestamp};
+use dribble_controller::{CameraFrame, CameraPosition, Thumbnail, Timestamp};
 use foxglove::bytes::Bytes;
 use foxglove::messages::{
     Color, Point3, Pose, PoseInFrame, Quaternion, RawImage, SceneUpdate, Timestamp as FoxgloveTime,
@@ -87,13 +87,21 @@ impl Channels {
 /// One camera's frame at `time`: the image when one is due, and the thumbnail the policy
 /// computes from it (the robot's own `downscale`), every frame.
 pub(crate) fn log_camera<const FW: usize, const FH: usize, const TW: usize, const TH: usize>(
-    [image_channel, thumbnail_channel]: [&Channel<RawImage>; 2],
-    frame_id: &str,
+    channels: &Channels,
+    camera: CameraPosition,
     time: Timestamp,
     frame: &CameraFrame<FW, FH>,
     image_due: bool,
     thumbnail: &mut Thumbnail<TW, TH>,
 ) {
+    let (image_channel, thumbnail_channel, frame_id) = match camera {
+        CameraPosition::Top => (&channels.top, &channels.top_thumbnail, "camera_top"),
+        CameraPosition::Bottom => (
+            &channels.bottom,
+            &channels.bottom_thumbnail,
+            "camera_bottom",
+        ),
+    };
     if image_due {
         log_image(
             image_channel,

@@ -68,22 +68,10 @@ impl EpisodeObserver for FoxgloveEpisodes {
         let (top_thumbnail, bottom_thumbnail) = &mut self.thumbnails;
         let channels = &self.channels;
         match camera {
-            CameraPosition::Top => log_camera(
-                [&channels.top, &channels.top_thumbnail],
-                "camera_top",
-                time,
-                top,
-                due,
-                top_thumbnail,
-            ),
-            CameraPosition::Bottom => log_camera(
-                [&channels.bottom, &channels.bottom_thumbnail],
-                "camera_bottom",
-                time,
-                bottom,
-                due,
-                bottom_thumbnail,
-            ),
+            CameraPosition::Top => log_camera(channels, camera, time, top, due, top_thumbnail),
+            CameraPosition::Bottom => {
+                log_camera(channels, camera, time, bottom, due, bottom_thumbnail)
+            }
         }
     }
 

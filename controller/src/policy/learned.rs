@@ -208,13 +208,16 @@ enum Network {
     },
 }
 
+/// A loaded network or policy and what its engine reported, or why it could not load.
+type Loaded<T> = Result<(T, EngineReport), PolicyLoadError>;
+
 impl Network {
     fn load(
         manifest: &PolicyManifest,
         path: &Path,
         names: PortNames,
         options: EngineOptions,
-    ) -> Result<(Self, EngineReport), PolicyLoadError> {
+    ) -> Loaded<Self> {
         let units = manifest.recurrent.as_ref().map_or(0, |r| r.units);
         let state_shape = [1, 1, units];
         let mut inputs = vec![
@@ -587,10 +590,7 @@ pub struct CnnPolicy {
 }
 
 impl CnnPolicy {
-    fn load(
-        manifest: &PolicyManifest,
-        options: EngineOptions,
-    ) -> Result<(Self, EngineReport), PolicyLoadError> {
+    fn load(manifest: &PolicyManifest, options: EngineOptions) -> Loaded<Self> {
         let path = manifest.directory.join(&manifest.networks[0]);
         let mut names = port_names(manifest);
         names.recurrent = None;
@@ -636,10 +636,7 @@ pub struct HcnnPolicy {
 }
 
 impl HcnnPolicy {
-    fn load(
-        manifest: &PolicyManifest,
-        options: EngineOptions,
-    ) -> Result<(Self, EngineReport), PolicyLoadError> {
+    fn load(manifest: &PolicyManifest, options: EngineOptions) -> Loaded<Self> {
         let mut names = port_names(manifest);
         names.recurrent = None;
         names.hypotheses = None;
@@ -723,10 +720,7 @@ pub struct RcnnPolicy {
 }
 
 impl RcnnPolicy {
-    fn load(
-        manifest: &PolicyManifest,
-        options: EngineOptions,
-    ) -> Result<(Self, EngineReport), PolicyLoadError> {
+    fn load(manifest: &PolicyManifest, options: EngineOptions) -> Loaded<Self> {
         let path = manifest.directory.join(&manifest.networks[0]);
         if manifest.recurrent.is_none() {
             return Err(PolicyLoadError::Manifest {

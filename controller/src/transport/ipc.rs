@@ -257,14 +257,33 @@ fn open_event(node: &Node<Ipc>, name: &'static str) -> Result<EventFactory<Ipc>,
         .map_err(|e| TransportError::ipc(name, e))
 }
 
+/// What creating a port of the service `name` gave, its error as a [`TransportError`].
+fn created<T, E: core::fmt::Debug>(
+    port: Result<T, E>,
+    name: &'static str,
+) -> Result<T, TransportError> {
+    port.map_err(|e| TransportError::ipc(name, e))
+}
+
 fn subscriber<T: core::fmt::Debug + ZeroCopySend + 'static>(
     factory: &PubSubFactory<Ipc, T, ()>,
     name: &'static str,
 ) -> Result<Subscriber<Ipc, T, ()>, TransportError> {
-    factory
-        .subscriber_builder()
-        .create()
-        .map_err(|e| TransportError::ipc(name, e))
+    created(factory.subscriber_builder().create(), name)
+}
+
+fn listener(
+    factory: &EventFactory<Ipc>,
+    name: &'static str,
+) -> Result<Listener<Ipc>, TransportError> {
+    created(factory.listener_builder().create(), name)
+}
+
+fn notifier(
+    factory: &EventFactory<Ipc>,
+    name: &'static str,
+) -> Result<Notifier<Ipc>, TransportError> {
+    created(factory.notifier_builder().create(), name)
 }
 
 /// A publisher on `name` for a process in `role` ("simulator" or "controller"), which says
@@ -285,26 +304,6 @@ fn publisher<T: core::fmt::Debug + ZeroCopySend + 'static>(
             },
             e => TransportError::ipc(name, e),
         })
-}
-
-fn listener(
-    factory: &EventFactory<Ipc>,
-    name: &'static str,
-) -> Result<Listener<Ipc>, TransportError> {
-    factory
-        .listener_builder()
-        .create()
-        .map_err(|e| TransportError::ipc(name, e))
-}
-
-fn notifier(
-    factory: &EventFactory<Ipc>,
-    name: &'static str,
-) -> Result<Notifier<Ipc>, TransportError> {
-    factory
-        .notifier_builder()
-        .create()
-        .map_err(|e| TransportError::ipc(name, e))
 }
 
 /// Every service of a domain, opened by one node with the settings both sides share.
@@ -337,20 +336,44 @@ impl Services {
     }
 }
 
-/// Sends a copy of `value` and wakes the listeners of its event service.
-fn send_and_signal<T: core::fmt::Debug + Copy + ZeroCopySend>(
-    publisher: &Publisher<Ipc, T, ()>,
-    notifier: &Notifier<Ipc>,
-    value: T,
-    what: &'static str,
-) -> Result<(), TransportError> {
-    publisher
-        .send_copy(value)
-        .map_err(|e| TransportError::ipc(what, e))?;
-    notifier
-        .notify()
-        .map_err(|e| TransportError::ipc(what, e))?;
-    Ok(())
+/// A lock-step service's sending end: its publisher and the notifier of its event service,
+/// which wakes the other side.
+#[derive(Debug)]
+struct SignallingPublisher<T: core::fmt::Debug + ZeroCopySend + 'static> {
+    publisher: Publisher<Ipc, T, ()>,
+    notifier: Notifier<Ipc>,
+}
+
+impl<T: core::fmt::Debug + Copy + ZeroCopySend + 'static> SignallingPublisher<T> {
+    /// Sends a copy of `value` and wakes the listeners (`what` names the send in an error).
+    fn send(&self, value: T, what: &'static str) -> Result<(), TransportError> {
+        self.publisher
+            .send_copy(value)
+            .map_err(|e| TransportError::ipc(what, e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| TransportError::ipc(what, e))?;
+        Ok(())
+    }
+}
+
+/// A lock-step service's receiving end: its subscriber and the listener its publisher's
+/// notifier wakes.
+#[derive(Debug)]
+struct SignalledSubscriber<T: core::fmt::Debug + ZeroCopySend + 'static> {
+    subscriber: Subscriber<Ipc, T, ()>,
+    listener: Listener<Ipc>,
+}
+
+impl<T: core::fmt::Debug + Copy + ZeroCopySend + 'static> SignalledSubscriber<T> {
+    /// The next message, waiting at most `timeout` for a signal when none is there.
+    fn next_or_wait(
+        &self,
+        timeout: Duration,
+        what: &'static str,
+    ) -> Result<Option<T>, TransportError> {
+        next_or_wait(&self.subscriber, &self.listener, timeout, what)
+    }
 }
 
 /// The next message in order, copied out, if one is waiting.
@@ -450,24 +473,26 @@ pub struct Iceoryx2ControllerPorts {
     _node: Node<Ipc>,
     top: Subscriber<Ipc, TopFrame, ()>,
     bottom: Subscriber<Ipc, BottomFrame, ()>,
-    ticks: Subscriber<Ipc, LockStepTick, ()>,
-    tick_events: Listener<Ipc>,
-    commands: Publisher<Ipc, MotionCommand, ()>,
-    command_events: Notifier<Ipc>,
+    ticks: SignalledSubscriber<LockStepTick>,
+    commands: SignallingPublisher<MotionCommand>,
     cleaned_dead_nodes: u64,
 }
 
 impl Iceoryx2ControllerPorts {
     pub fn open(domain: &Domain) -> Result<Self, TransportError> {
         let services = Services::open(domain, CONTROLLER_NODE)?;
-        let commands = publisher(&services.commands, COMMAND_SERVICE, "controller")?;
+        let commands = SignallingPublisher {
+            publisher: publisher(&services.commands, COMMAND_SERVICE, "controller")?,
+            notifier: notifier(&services.command_events, COMMAND_SERVICE)?,
+        };
         Ok(Self {
             top: subscriber(&services.top, TOP_CAMERA_SERVICE)?,
             bottom: subscriber(&services.bottom, BOTTOM_CAMERA_SERVICE)?,
-            ticks: subscriber(&services.ticks, TICK_SERVICE)?,
-            tick_events: listener(&services.tick_events, TICK_SERVICE)?,
+            ticks: SignalledSubscriber {
+                subscriber: subscriber(&services.ticks, TICK_SERVICE)?,
+                listener: listener(&services.tick_events, TICK_SERVICE)?,
+            },
             commands,
-            command_events: notifier(&services.command_events, COMMAND_SERVICE)?,
             _node: services._node,
             cleaned_dead_nodes: services.cleaned_dead_nodes,
         })
@@ -492,21 +517,12 @@ impl ControllerPorts for Iceoryx2ControllerPorts {
     }
 
     fn publish(&mut self, command: &MotionCommand) -> Result<(), TransportError> {
-        send_and_signal(
-            &self.commands,
-            &self.command_events,
-            *command,
-            "cannot publish a command",
-        )
+        self.commands.send(*command, "cannot publish a command")
     }
 
     fn next_tick(&mut self, timeout: Duration) -> Result<Option<LockStepTick>, TransportError> {
-        next_or_wait(
-            &self.ticks,
-            &self.tick_events,
-            timeout,
-            "waiting for a tick failed",
-        )
+        self.ticks
+            .next_or_wait(timeout, "waiting for a tick failed")
     }
 }
 
@@ -516,10 +532,8 @@ pub struct Iceoryx2SimulatorPorts {
     services: Services,
     top: Publisher<Ipc, TopFrame, ()>,
     bottom: Publisher<Ipc, BottomFrame, ()>,
-    ticks: Publisher<Ipc, LockStepTick, ()>,
-    tick_events: Notifier<Ipc>,
-    commands: Subscriber<Ipc, MotionCommand, ()>,
-    command_events: Listener<Ipc>,
+    ticks: SignallingPublisher<LockStepTick>,
+    commands: SignalledSubscriber<MotionCommand>,
 }
 
 impl Iceoryx2SimulatorPorts {
@@ -528,10 +542,14 @@ impl Iceoryx2SimulatorPorts {
         Ok(Self {
             top: publisher(&services.top, TOP_CAMERA_SERVICE, "simulator")?,
             bottom: publisher(&services.bottom, BOTTOM_CAMERA_SERVICE, "simulator")?,
-            ticks: publisher(&services.ticks, TICK_SERVICE, "simulator")?,
-            tick_events: notifier(&services.tick_events, TICK_SERVICE)?,
-            commands: subscriber(&services.commands, COMMAND_SERVICE)?,
-            command_events: listener(&services.command_events, COMMAND_SERVICE)?,
+            ticks: SignallingPublisher {
+                publisher: publisher(&services.ticks, TICK_SERVICE, "simulator")?,
+                notifier: notifier(&services.tick_events, TICK_SERVICE)?,
+            },
+            commands: SignalledSubscriber {
+                subscriber: subscriber(&services.commands, COMMAND_SERVICE)?,
+                listener: listener(&services.command_events, COMMAND_SERVICE)?,
+            },
             services,
         })
     }
@@ -561,31 +579,23 @@ impl SimulatorPorts for Iceoryx2SimulatorPorts {
     }
 
     fn discard_commands(&mut self) -> Result<(), TransportError> {
-        self.command_events
+        self.commands
+            .listener
             .try_wait(|_| {})
             .map_err(|e| TransportError::ipc("cannot read command events", e))?;
-        while newest(&self.commands)?.is_some() {}
+        while newest(&self.commands.subscriber)?.is_some() {}
         Ok(())
     }
 
     fn publish_tick(&mut self, tick: &LockStepTick) -> Result<(), TransportError> {
-        send_and_signal(
-            &self.ticks,
-            &self.tick_events,
-            *tick,
-            "cannot publish a tick",
-        )
+        self.ticks.send(*tick, "cannot publish a tick")
     }
 
     fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
-        next_or_wait(
-            &self.commands,
-            &self.command_events,
-            timeout,
-            "waiting for a command failed",
-        )?
-        .map(checked_command)
-        .transpose()
+        self.commands
+            .next_or_wait(timeout, "waiting for a command failed")?
+            .map(checked_command)
+            .transpose()
     }
 }
 
@@ -595,8 +605,7 @@ impl SimulatorPorts for Iceoryx2SimulatorPorts {
 pub struct CommandMonitor {
     /// Held, never used: while it lives, the monitor is alive in the domain.
     _node: Node<Ipc>,
-    commands: Subscriber<Ipc, MotionCommand, ()>,
-    command_events: Listener<Ipc>,
+    commands: SignalledSubscriber<MotionCommand>,
 }
 
 impl CommandMonitor {
@@ -605,25 +614,23 @@ impl CommandMonitor {
         let service = open_pubsub::<MotionCommand>(&node, COMMAND_SERVICE, &COMMAND_QOS)?;
         let events = open_event(&node, COMMAND_SERVICE)?;
         Ok(Self {
-            commands: subscriber(&service, COMMAND_SERVICE)?,
-            command_events: listener(&events, COMMAND_SERVICE)?,
+            commands: SignalledSubscriber {
+                subscriber: subscriber(&service, COMMAND_SERVICE)?,
+                listener: listener(&events, COMMAND_SERVICE)?,
+            },
             _node: node,
         })
     }
 
     /// The next command in order, if one is waiting.
     pub fn try_next(&mut self) -> Result<Option<MotionCommand>, TransportError> {
-        next_message(&self.commands)
+        next_message(&self.commands.subscriber)
     }
 
     /// The next command in order, waiting at most `timeout` for the controller to send one.
     pub fn next(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError> {
-        next_or_wait(
-            &self.commands,
-            &self.command_events,
-            timeout,
-            "waiting for a command failed",
-        )
+        self.commands
+            .next_or_wait(timeout, "waiting for a command failed")
     }
 }
 

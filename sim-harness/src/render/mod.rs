@@ -29,6 +29,7 @@ use crate::conditions::{EpisodeLook, Occluder};
 use crate::field::FieldGeometry;
 use pipelines::{Pipelines, READ_TWICE};
 use target::{CameraTarget, camera_target};
+use wgpu::BufferUsages as Usages;
 
 pub use clean_twin::CleanTwin;
 pub use scene::{Mesh, StaticScene, Vertex, ball_mesh, static_scene, static_scene_in};
@@ -179,12 +180,12 @@ impl Renderer {
         .map_err(|error| RenderError::Device(error.to_string()))?;
 
         let (layouts, pipelines) = Pipelines::new(&device);
-        let light = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("light"),
-            size: size_of::<LightUniform>() as u64,
-            usage: READ_TWICE,
-            mapped_at_creation: false,
-        });
+        let light = target::buffer(
+            &device,
+            "light",
+            size_of::<LightUniform>() as u64,
+            READ_TWICE,
+        );
         let light_group = target::bind_group(
             &device,
             "light",
@@ -194,12 +195,12 @@ impl Renderer {
 
         let static_scene = GpuScene::upload(&device, &static_scene(field, goal_depth));
         let ball_mesh = upload(&device, "ball", &ball_mesh(field.ball_diameter / 2.0));
-        let models = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("models"),
-            size: 2 * UNIFORM_STRIDE,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let models = target::buffer(
+            &device,
+            "models",
+            2 * UNIFORM_STRIDE,
+            Usages::UNIFORM | Usages::COPY_DST,
+        );
         queue.write_buffer(
             &models,
             0,

@@ -4,6 +4,7 @@
 
 use super::pipelines::{Layouts, READ_TWICE};
 use super::{COLOUR_FORMAT, CameraEffects, DEPTH_FORMAT, LINEAR_FORMAT, SAMPLES};
+use wgpu::BufferUsages as Usages;
 
 /// Per camera: its uniform, multisampled and resolved targets, and the YUYV buffers.
 pub(super) struct CameraTarget {
@@ -36,6 +37,9 @@ pub(super) fn camera_target(
     };
     let texture =
         |label, format, samples, usage| target_texture(device, size, label, format, samples, usage);
+    let group = |label, layout, resources: &[wgpu::BindingResource<'_>]| {
+        bind_group(device, label, layout, resources)
+    };
     let multisampled = texture(
         "multisampled",
         COLOUR_FORMAT,
@@ -60,8 +64,7 @@ pub(super) fn camera_target(
         1,
         wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
     );
-    let linear_group = bind_group(
-        device,
+    let linear_group = group(
         "linear light",
         &layouts.linear,
         &[
@@ -70,32 +73,16 @@ pub(super) fn camera_target(
         ],
     );
     let bytes = u64::from(width) * u64::from(height) * 2;
-    let packed = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("yuyv"),
-        size: bytes,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let readback = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("yuyv readback"),
-        size: bytes,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let uniform = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("camera"),
-        size: 64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let camera_group = bind_group(
+    let packed = buffer(device, "yuyv", bytes, Usages::STORAGE | Usages::COPY_SRC);
+    let readback = buffer(
         device,
-        "camera",
-        &layouts.camera,
-        &[uniform.as_entire_binding()],
+        "yuyv readback",
+        bytes,
+        Usages::MAP_READ | Usages::COPY_DST,
     );
-    let pack_group = bind_group(
-        device,
+    let uniform = buffer(device, "camera", 64, Usages::UNIFORM | Usages::COPY_DST);
+    let camera_group = group("camera", &layouts.camera, &[uniform.as_entire_binding()]);
+    let pack_group = group(
         "pack",
         &layouts.pack,
         &[
@@ -103,14 +90,13 @@ pub(super) fn camera_target(
             packed.as_entire_binding(),
         ],
     );
-    let effects = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("camera effects"),
-        size: size_of::<CameraEffects>() as u64,
-        usage: READ_TWICE,
-        mapped_at_creation: false,
-    });
-    let effects_group = bind_group(
+    let effects = buffer(
         device,
+        "camera effects",
+        size_of::<CameraEffects>() as u64,
+        READ_TWICE,
+    );
+    let effects_group = group(
         "camera effects",
         &layouts.effects,
         &[
@@ -135,6 +121,21 @@ pub(super) fn camera_target(
         pack_group,
         linear_group,
     }
+}
+
+/// A buffer of `size` bytes for `usage`, not mapped.
+pub(super) fn buffer(
+    device: &wgpu::Device,
+    label: &str,
+    size: u64,
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage,
+        mapped_at_creation: false,
+    })
 }
 
 /// A bind group of `layout` whose binding `i` is `resources[i]`.

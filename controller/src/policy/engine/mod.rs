@@ -325,29 +325,23 @@ mod x86 {
     use super::kernels::{Avx512Kernels, AvxKernels, SseKernels};
     use super::plan::{Step, run};
 
-    #[target_feature(enable = "avx,avx2,fma,avx512f")]
-    pub(super) fn run_avx512(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
-        run::<Avx512Kernels>(steps, buffers, nonzero);
+    /// `run` with `kernels`, compiled for the target features `features` (one function each:
+    /// `#[target_feature]` takes no generics).
+    macro_rules! run_compiled_for {
+        ($($name:ident: $features:literal, $kernels:ty;)*) => {$(
+            #[target_feature(enable = $features)]
+            pub(super) fn $name(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
+                run::<$kernels>(steps, buffers, nonzero);
+            }
+        )*};
     }
 
-    #[target_feature(enable = "avx,avx2,fma")]
-    pub(super) fn run_avx2_fma(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
-        run::<AvxKernels>(steps, buffers, nonzero);
-    }
-
-    #[target_feature(enable = "sse2,sse3,ssse3,sse4.1,sse4.2")]
-    pub(super) fn run_sse42(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
-        run::<SseKernels>(steps, buffers, nonzero);
-    }
-
-    #[target_feature(enable = "sse2,sse3,ssse3")]
-    pub(super) fn run_ssse3(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
-        run::<SseKernels>(steps, buffers, nonzero);
-    }
-
-    #[target_feature(enable = "sse2")]
-    pub(super) fn run_sse2(steps: &mut [Step], buffers: &mut [Vec<f32>], nonzero: &mut [u32]) {
-        run::<SseKernels>(steps, buffers, nonzero);
+    run_compiled_for! {
+        run_avx512: "avx,avx2,fma,avx512f", Avx512Kernels;
+        run_avx2_fma: "avx,avx2,fma", AvxKernels;
+        run_sse42: "sse2,sse3,ssse3,sse4.1,sse4.2", SseKernels;
+        run_ssse3: "sse2,sse3,ssse3", SseKernels;
+        run_sse2: "sse2", SseKernels;
     }
 }
 

@@ -63,27 +63,32 @@ fn attribute(name: &str, value: &Attribute) -> pb::AttributeProto {
 
 /// A float constant of `shape` (as an initializer or a Constant's value).
 pub fn floats(name: &str, shape: &[i64], values: &[f32]) -> pb::TensorProto {
+    let float_data = values.to_vec();
     pb::TensorProto {
-        name: name.to_owned(),
-        dims: shape.to_vec(),
-        data_type: pb::tensor_proto::DataType::Float as i32,
-        float_data: values.to_vec(),
-        ..Default::default()
+        float_data,
+        ..constant(name, shape, pb::tensor_proto::DataType::Float)
     }
 }
 
 /// An int64 constant of `shape` (shapes, axes, indices).
 pub fn ints(name: &str, shape: &[i64], values: &[i64]) -> pb::TensorProto {
+    let int64_data = values.to_vec();
+    pb::TensorProto {
+        int64_data,
+        ..constant(name, shape, pb::tensor_proto::DataType::Int64)
+    }
+}
+
+/// A constant's name, shape and type, without its values.
+fn constant(name: &str, shape: &[i64], data_type: pb::tensor_proto::DataType) -> pb::TensorProto {
     pb::TensorProto {
         name: name.to_owned(),
         dims: shape.to_vec(),
-        data_type: pb::tensor_proto::DataType::Int64 as i32,
-        int64_data: values.to_vec(),
+        data_type: data_type as i32,
         ..Default::default()
     }
 }
 
-/// A graph input or output: f32 of `shape`, or of no declared shape (`None`).
 pub fn value_info(name: &str, shape: Option<&[usize]>) -> pb::ValueInfoProto {
     use pb::tensor_shape_proto::{Dimension, dimension};
     let shape = shape.map(|shape| pb::TensorShapeProto {

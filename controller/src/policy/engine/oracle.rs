@@ -51,6 +51,15 @@ pub fn agree(engine: f32, tract: f32, scale: f32, tolerance: f32) -> bool {
         || (engine - tract).abs() <= tolerance * (1.0 + scale)
 }
 
+/// A disagreement described by `describe(engine's, other's)` when the two lengths differ.
+fn lengths_differ(
+    engine: usize,
+    other: usize,
+    describe: impl FnOnce(usize, usize) -> String,
+) -> Option<Comparison> {
+    (engine != other).then(|| Comparison::Disagree(describe(engine, other)))
+}
+
 /// The largest finite magnitude in `values` (0 when none is finite).
 fn scale(values: &[f32]) -> f32 {
     values
@@ -108,12 +117,10 @@ pub fn compare(
             let Some(input) = compiled.input_mut(name) else {
                 return Comparison::Disagree(format!("the plan has no input {name}"));
             };
-            if input.len() != values.len() {
-                return Comparison::Disagree(format!(
-                    "the plan's input {name} holds {} values, not {}",
-                    input.len(),
-                    values.len()
-                ));
+            if let Some(disagree) = lengths_differ(input.len(), values.len(), |plan, given| {
+                format!("the plan's input {name} holds {plan} values, not {given}")
+            }) {
+                return disagree;
             }
             input.copy_from_slice(&values);
             match Tensor::from_shape(shape, &values) {
@@ -138,12 +145,10 @@ pub fn compare(
             let Some(engine) = compiled.output(name) else {
                 return Comparison::Disagree(format!("the plan has no output {name}"));
             };
-            if engine.len() != tract.len() {
-                return Comparison::Disagree(format!(
-                    "output {name}: {} values from the engine, {} from tract",
-                    engine.len(),
-                    tract.len()
-                ));
+            if let Some(disagree) = lengths_differ(engine.len(), tract.len(), |engine, tract| {
+                format!("output {name}: {engine} values from the engine, {tract} from tract")
+            }) {
+                return disagree;
             }
             let scale = scale(&tract);
             for (i, (&a, &b)) in engine.iter().zip(&tract).enumerate() {

@@ -9,7 +9,7 @@ use core::mem;
 use super::kernels::int8::PooledPixelWeights;
 use super::kernels::int8::{Int8Kernel, QuadPanels, Window, ZeroGroups, code_run};
 use super::kernels::winograd;
-use super::kernels::{Kernels, PooledConv, portable};
+use super::kernels::{Kernels, PoolShape, PooledConv, portable};
 use super::layout::{AlignedWeights, BufferId, ConvLayer, ConvShape, DenseWeights, Grid, Strided};
 
 /// A max-pool folded into the convolution before it: the convolution's rows under one row
@@ -253,10 +253,7 @@ pub(crate) enum Step {
     MaxPool {
         from: BufferId,
         to: BufferId,
-        size: [usize; 3],
-        kernel: [usize; 2],
-        stride: [usize; 2],
-        out: [usize; 2],
+        shape: PoolShape,
     },
     NhwcToNchw {
         from: BufferId,
@@ -554,15 +551,8 @@ fn float_step<K: Kernels>(step: &Step, buffers: &mut [Vec<f32>], nonzero: &mut [
                 Some(pool) => conv_pool::<K>(&layer, pool, *padded, *out, buffers),
             }
         }
-        Step::MaxPool {
-            from,
-            to,
-            size,
-            kernel,
-            stride,
-            out,
-        } => with_output(buffers, *to, |target, buffers| {
-            K::max_pool(&buffers[*from], *size, *kernel, *stride, *out, target);
+        Step::MaxPool { from, to, shape } => with_output(buffers, *to, |target, buffers| {
+            K::max_pool(&buffers[*from], *shape, target);
         }),
         Step::NhwcToNchw { from, to, size } => with_output(buffers, *to, |target, buffers| {
             nhwc_to_nchw(&buffers[*from], *size, target);
@@ -845,16 +835,16 @@ fn winograd_conv_pool<K: Kernels>(
     let mut target = mem::take(&mut buffers[out]);
     let mut transformed = mem::take(&mut buffers[winograd.transformed]);
     let mut products = mem::take(&mut buffers[winograd.products]);
-    let done = K::winograd_conv_pool(
-        &winograd.layer,
-        &buffers[padded],
-        winograd.weights.as_slice(),
-        layer.bias,
-        layer.relu,
-        &mut transformed,
-        &mut products,
-        &mut target,
-    );
+    let done = K::winograd_conv_pool(&mut winograd::Operands {
+        layer: &winograd.layer,
+        padded: &buffers[padded],
+        weights: winograd.weights.as_slice(),
+        bias: layer.bias,
+        relu: layer.relu,
+        transformed: &mut transformed,
+        products: &mut products,
+        out: &mut target,
+    });
     buffers[winograd.transformed] = transformed;
     buffers[winograd.products] = products;
     buffers[out] = target;
@@ -897,14 +887,13 @@ fn conv_pool<K: Kernels>(
     for (py, pooled) in pooled_rows.enumerate() {
         let first = py * pool.stride[0];
         K::conv(layer, input, first, scratch_rows);
-        K::max_pool(
-            scratch_rows,
-            [rows, ow, oc],
-            pool.kernel,
-            pool.stride,
-            [1, pw],
-            pooled,
-        );
+        let shape = PoolShape {
+            size: [rows, ow, oc],
+            kernel: pool.kernel,
+            stride: pool.stride,
+            out: [1, pw],
+        };
+        K::max_pool(scratch_rows, shape, pooled);
     }
     buffers[pool.scratch] = scratch;
     buffers[out] = target;

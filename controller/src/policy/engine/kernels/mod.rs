@@ -57,6 +57,16 @@ impl MulAdd for Separate {
     }
 }
 
+/// A max-pool's geometry over an NHWC map (no padding): the input's `[h, w, c]`, the
+/// window's and the stride's `[rows, columns]`, and the pooled map's `[h, w]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct PoolShape {
+    pub size: [usize; 3],
+    pub kernel: [usize; 2],
+    pub stride: [usize; 2],
+    pub out: [usize; 2],
+}
+
 /// A convolution's pool as [`Kernels::single_channel_conv_pool`] computes it: the pool's
 /// window, stride and pooled size, the padded image, the kernel's scratch, the pooled map.
 #[derive(Debug)]
@@ -77,17 +87,7 @@ pub(crate) trait Kernels {
     /// A convolution and its pool by [`winograd`] into the pooled map `out`, where the set
     /// has the kernels for the layer's channels; false, having written nothing, where not.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)] // one layer
-    fn winograd_conv_pool(
-        _layer: &winograd::Layer,
-        _padded: &[f32],
-        _weights: &[f32],
-        _bias: &[f32],
-        _relu: bool,
-        _transformed: &mut [f32],
-        _products: &mut [f32],
-        _out: &mut [f32],
-    ) -> bool {
+    fn winograd_conv_pool(_conv: &mut winograd::Operands<'_>) -> bool {
         false
     }
 
@@ -101,15 +101,8 @@ pub(crate) trait Kernels {
 
     /// Max pooling of an NHWC map (see [`portable::max_pool_nhwc`]).
     #[inline(always)]
-    fn max_pool(
-        input: &[f32],
-        size: [usize; 3],
-        kernel: [usize; 2],
-        stride: [usize; 2],
-        out_size: [usize; 2],
-        out: &mut [f32],
-    ) {
-        portable::max_pool_nhwc(input, size, kernel, stride, out_size, out);
+    fn max_pool(input: &[f32], shape: PoolShape, out: &mut [f32]) {
+        portable::max_pool_nhwc(input, shape, out);
     }
 }
 
@@ -199,16 +192,7 @@ impl Kernels for SseKernels {
     }
 
     #[inline(always)]
-    fn winograd_conv_pool(
-        layer: &winograd::Layer,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        transformed: &mut [f32],
-        products: &mut [f32],
-        out: &mut [f32],
-    ) -> bool {
+    fn winograd_conv_pool(conv: &mut winograd::Operands<'_>) -> bool {
         use self::simd::Sse;
         // One tile by every output channel: each broadcast input (a shuffle, on the pipes
         // that the multiplies and adds use) feeds eight or four multiplies, where five tiles
@@ -216,22 +200,13 @@ impl Kernels for SseKernels {
         // µs, the bottom camera's 13.9 -> 12.3 µs; two tiles by four vectors: 172 µs).
         macro_rules! blocked {
             ($tiles:literal, $vecs:literal) => {
-                winograd::conv_pool::<Sse, $tiles, $vecs>(
-                    layer,
-                    padded,
-                    weights,
-                    bias,
-                    relu,
-                    transformed,
-                    products,
-                    out,
-                )
+                winograd::conv_pool::<Sse, $tiles, $vecs>(conv)
             };
         }
         #[cfg(target_arch = "x86_64")]
-        let done = if layer.out_channels.is_multiple_of(32) {
+        let done = if conv.layer.out_channels.is_multiple_of(32) {
             blocked!(1, 8)
-        } else if layer.out_channels.is_multiple_of(16) {
+        } else if conv.layer.out_channels.is_multiple_of(16) {
             blocked!(1, 4)
         } else {
             blocked!(5, 2)
@@ -265,15 +240,8 @@ impl Kernels for SseKernels {
     }
 
     #[inline(always)]
-    fn max_pool(
-        input: &[f32],
-        size: [usize; 3],
-        kernel: [usize; 2],
-        stride: [usize; 2],
-        out_size: [usize; 2],
-        out: &mut [f32],
-    ) {
-        simd::max_pool::<simd::Sse>(input, size, kernel, stride, out_size, out);
+    fn max_pool(input: &[f32], shape: PoolShape, out: &mut [f32]) {
+        simd::max_pool::<simd::Sse>(input, shape, out);
     }
 }
 
@@ -311,26 +279,8 @@ impl Kernels for AvxKernels {
 
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn winograd_conv_pool(
-        layer: &winograd::Layer,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        transformed: &mut [f32],
-        products: &mut [f32],
-        out: &mut [f32],
-    ) -> bool {
-        winograd::conv_pool::<simd::Avx, 5, 2>(
-            layer,
-            padded,
-            weights,
-            bias,
-            relu,
-            transformed,
-            products,
-            out,
-        )
+    fn winograd_conv_pool(conv: &mut winograd::Operands<'_>) -> bool {
+        winograd::conv_pool::<simd::Avx, 5, 2>(conv)
     }
 
     #[inline(always)]
@@ -355,15 +305,8 @@ impl Kernels for AvxKernels {
     }
 
     #[inline(always)]
-    fn max_pool(
-        input: &[f32],
-        size: [usize; 3],
-        kernel: [usize; 2],
-        stride: [usize; 2],
-        out_size: [usize; 2],
-        out: &mut [f32],
-    ) {
-        simd::max_pool::<simd::Avx>(input, size, kernel, stride, out_size, out);
+    fn max_pool(input: &[f32], shape: PoolShape, out: &mut [f32]) {
+        simd::max_pool::<simd::Avx>(input, shape, out);
     }
 }
 
@@ -403,35 +346,8 @@ impl Kernels for Avx512Kernels {
 
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn winograd_conv_pool(
-        layer: &winograd::Layer,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        transformed: &mut [f32],
-        products: &mut [f32],
-        out: &mut [f32],
-    ) -> bool {
-        winograd::conv_pool::<simd::Avx512, 5, 2>(
-            layer,
-            padded,
-            weights,
-            bias,
-            relu,
-            transformed,
-            products,
-            out,
-        ) || AvxKernels::winograd_conv_pool(
-            layer,
-            padded,
-            weights,
-            bias,
-            relu,
-            transformed,
-            products,
-            out,
-        )
+    fn winograd_conv_pool(conv: &mut winograd::Operands<'_>) -> bool {
+        winograd::conv_pool::<simd::Avx512, 5, 2>(conv) || AvxKernels::winograd_conv_pool(conv)
     }
 
     #[inline(always)]
@@ -457,18 +373,11 @@ impl Kernels for Avx512Kernels {
     }
 
     #[inline(always)]
-    fn max_pool(
-        input: &[f32],
-        size: [usize; 3],
-        kernel: [usize; 2],
-        stride: [usize; 2],
-        out_size: [usize; 2],
-        out: &mut [f32],
-    ) {
-        if size[2].is_multiple_of(16) {
-            simd::max_pool::<simd::Avx512>(input, size, kernel, stride, out_size, out);
+    fn max_pool(input: &[f32], shape: PoolShape, out: &mut [f32]) {
+        if shape.size[2].is_multiple_of(16) {
+            simd::max_pool::<simd::Avx512>(input, shape, out);
         } else {
-            AvxKernels::max_pool(input, size, kernel, stride, out_size, out);
+            AvxKernels::max_pool(input, shape, out);
         }
     }
 }

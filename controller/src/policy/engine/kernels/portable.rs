@@ -3,7 +3,7 @@
 //! its own vector instructions. The x86 paths fall back to them where their own kernels do
 //! not fit a layer.
 
-use super::MulAdd;
+use super::{MulAdd, PoolShape};
 use crate::policy::engine::layout::{ConvLayer, ConvShape, DenseWeights};
 
 /// Convolution of a zero-bordered NHWC input (`padded`: `[rows][padded_width][in]`) with
@@ -148,15 +148,13 @@ pub(crate) fn conv_any<M: MulAdd>(
 /// Max pooling of an NHWC map `[h][w][c]` (no padding). A ReLU next to the pool is folded
 /// into the convolution before it (both are monotone), so the pool has no clamp of its own.
 #[inline(always)]
-pub(crate) fn max_pool_nhwc(
-    input: &[f32],
-    [_, w, c]: [usize; 3],
-    kernel: [usize; 2],
-    stride: [usize; 2],
-    out_size: [usize; 2],
-    out: &mut [f32],
-) {
-    let [oh, ow] = out_size;
+pub(crate) fn max_pool_nhwc(input: &[f32], shape: PoolShape, out: &mut [f32]) {
+    let PoolShape {
+        size: [_, w, c],
+        kernel,
+        stride,
+        out: [oh, ow],
+    } = shape;
     for oy in 0..oh {
         for ox in 0..ow {
             let target = &mut out[(oy * ow + ox) * c..(oy * ow + ox + 1) * c];

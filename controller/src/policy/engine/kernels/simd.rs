@@ -16,6 +16,7 @@ use std::arch::x86::*;
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
+use super::PoolShape;
 use super::portable::nonzero_indices;
 use crate::policy::engine::layout::{ConvLayer, ConvShape, DenseWeights};
 
@@ -664,16 +665,15 @@ unsafe fn conv_tap<V: Vector, const VECS: usize, const P: usize>(
 /// [`super::portable::max_pool_nhwc`] over vectors; channels that are not a whole number
 /// of vectors go to that scalar version.
 #[inline(always)]
-pub(crate) fn max_pool<V: Vector>(
-    input: &[f32],
-    size @ [_, w, c]: [usize; 3],
-    kernel: [usize; 2],
-    stride: [usize; 2],
-    [oh, ow]: [usize; 2],
-    out: &mut [f32],
-) {
+pub(crate) fn max_pool<V: Vector>(input: &[f32], shape: PoolShape, out: &mut [f32]) {
+    let PoolShape {
+        size: [_, w, c],
+        kernel,
+        stride,
+        out: [oh, ow],
+    } = shape;
     if c == 0 || !c.is_multiple_of(V::LANES) {
-        super::portable::max_pool_nhwc(input, size, kernel, stride, [oh, ow], out);
+        super::portable::max_pool_nhwc(input, shape, out);
         return;
     }
     if kernel == [2, 2] && stride == [2, 2] {

@@ -233,8 +233,8 @@ fn channel_pair<V: Vector, const OC: usize, const KH: usize, const KW: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::policy::engine::kernels::Separate;
     use crate::policy::engine::kernels::portable::{conv_any, max_pool_nhwc};
+    use crate::policy::engine::kernels::{PoolShape, Separate};
     use crate::policy::engine::layout::ConvShape;
 
     /// The portable convolution and a separate pool: the reference the kernel must match.
@@ -244,7 +244,13 @@ mod tests {
         let mut full = vec![0.0; oh * ow * oc];
         conv_any::<Separate>(layer, padded, 0, &mut full);
         let mut pooled = vec![0.0; pool_out[0] * pool_out[1] * oc];
-        max_pool_nhwc(&full, [oh, ow, oc], [2, 2], [2, 2], pool_out, &mut pooled);
+        let shape = PoolShape {
+            size: [oh, ow, oc],
+            kernel: [2, 2],
+            stride: [2, 2],
+            out: pool_out,
+        };
+        max_pool_nhwc(&full, shape, &mut pooled);
         pooled
     }
 

@@ -193,6 +193,21 @@ pub(crate) fn transform_weights(
     AlignedWeights::new(&u)
 }
 
+/// One layer's convolution and pool as [`conv_pool`] computes them: the layer, its
+/// zero-bordered NHWC input, the transformed weights ([`transform_weights`]), bias and ReLU,
+/// the two scratch buffers ([`Layer::scratch`]) and the pooled map.
+#[derive(Debug)]
+pub(crate) struct Operands<'a> {
+    pub layer: &'a Layer,
+    pub padded: &'a [f32],
+    pub weights: &'a [f32],
+    pub bias: &'a [f32],
+    pub relu: bool,
+    pub transformed: &'a mut [f32],
+    pub products: &'a mut [f32],
+    pub out: &'a mut [f32],
+}
+
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 pub(crate) use vector::conv_pool;
 
@@ -200,7 +215,7 @@ pub(crate) use vector::conv_pool;
 mod vector {
     #![allow(unsafe_code)]
 
-    use super::{Layer, POINTS, SCRATCH_SLACK};
+    use super::{Layer, Operands, POINTS, SCRATCH_SLACK};
     use crate::policy::engine::kernels::simd::Vector;
 
     /// `B^T d` along one dimension: four vectors into four.
@@ -251,17 +266,13 @@ mod vector {
     /// Returns false, having written nothing, where the channels are not whole vectors and
     /// groups or a buffer is short.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)] // one layer
     pub(crate) fn conv_pool<V: Vector, const P: usize, const VECS: usize>(
-        layer: &Layer,
-        padded: &[f32],
-        weights: &[f32],
-        bias: &[f32],
-        relu: bool,
-        transformed: &mut [f32],
-        products: &mut [f32],
-        out: &mut [f32],
+        conv: &mut Operands<'_>,
     ) -> bool {
+        let (layer, padded, weights, bias, relu) =
+            (conv.layer, conv.padded, conv.weights, conv.bias, conv.relu);
+        let (transformed, products, out) =
+            (&mut *conv.transformed, &mut *conv.products, &mut *conv.out);
         let (ic, oc) = (layer.in_channels, layer.out_channels);
         let [width, rows] = layer.padded;
         let [th, tw] = layer.tiles;
@@ -724,63 +735,39 @@ mod vector_tests {
             let mut out = vec![0.0; th * tw * self.layer.out_channels];
             // SAFETY: `kernels` offers only the sets this CPU runs.
             let done = unsafe {
-                kernel(
-                    &self.layer,
-                    &self.padded,
-                    weights.as_slice(),
-                    &self.bias,
-                    &mut transformed,
-                    &mut products,
-                    &mut out,
-                )
+                kernel(&mut Operands {
+                    layer: &self.layer,
+                    padded: &self.padded,
+                    weights: weights.as_slice(),
+                    bias: &self.bias,
+                    relu: true,
+                    transformed: &mut transformed,
+                    products: &mut products,
+                    out: &mut out,
+                })
             };
             done.then_some(out)
         }
     }
 
-    type Kernel =
-        unsafe fn(&Layer, &[f32], &[f32], &[f32], &mut [f32], &mut [f32], &mut [f32]) -> bool;
+    type Kernel = unsafe fn(&mut Operands<'_>) -> bool;
 
     /// The SSE kernel with `P` tiles by `VECS` vectors per block: five by two (the layers whose
     /// channels fill neither 16 nor 32), and the blockings the engine runs for 32 and 16
     /// output channels (`SseKernels::winograd_conv_pool`), one by eight and one by four on
     /// x86-64, one by two (broadcasting four inputs at a time there) on the V5's i686.
-    fn sse<const P: usize, const VECS: usize>(
-        l: &Layer,
-        x: &[f32],
-        u: &[f32],
-        b: &[f32],
-        t: &mut [f32],
-        m: &mut [f32],
-        o: &mut [f32],
-    ) -> bool {
-        conv_pool::<Sse, P, VECS>(l, x, u, b, true, t, m, o)
+    fn sse<const P: usize, const VECS: usize>(conv: &mut Operands<'_>) -> bool {
+        conv_pool::<Sse, P, VECS>(conv)
     }
 
     #[target_feature(enable = "avx,avx2,fma")]
-    fn avx(
-        l: &Layer,
-        x: &[f32],
-        u: &[f32],
-        b: &[f32],
-        t: &mut [f32],
-        m: &mut [f32],
-        o: &mut [f32],
-    ) -> bool {
-        conv_pool::<Avx, 5, 2>(l, x, u, b, true, t, m, o)
+    fn avx(conv: &mut Operands<'_>) -> bool {
+        conv_pool::<Avx, 5, 2>(conv)
     }
 
     #[target_feature(enable = "avx,avx2,fma,avx512f")]
-    fn avx512(
-        l: &Layer,
-        x: &[f32],
-        u: &[f32],
-        b: &[f32],
-        t: &mut [f32],
-        m: &mut [f32],
-        o: &mut [f32],
-    ) -> bool {
-        conv_pool::<Avx512, 5, 2>(l, x, u, b, true, t, m, o)
+    fn avx512(conv: &mut Operands<'_>) -> bool {
+        conv_pool::<Avx512, 5, 2>(conv)
     }
 
     /// Each vector set and blocking this CPU runs: its kernel, its lanes and the output

@@ -8,10 +8,7 @@ impl Lowerer {
     pub(super) fn conv(&mut self, op: &Operation<'_>) -> Lowered<()> {
         let (node, attributes, input, output) = (op.node, &op.attributes, op.first()?, op.output);
         let (buffer, shape, layout) = self.float_tensor(input, "a convolution")?;
-        let weights_name = node
-            .input
-            .get(1)
-            .ok_or_else(|| Unsupported("no weights".into()))?;
+        let weights_name = node.input.get(1).or_unsupported("no weights")?;
         let (weights, weight_shape) = self.weights(weights_name)?;
         let [n, c, h, w] = shape[..] else {
             return unsupported(format!("input shape {shape:?}: only 2-D convolutions"));
@@ -129,10 +126,12 @@ impl Lowerer {
             Step::MaxPool {
                 from: buffer,
                 to,
-                size: [h, w, c],
-                kernel: [kernel[0], kernel[1]],
-                stride: [strides[0], strides[1]],
-                out,
+                shape: PoolShape {
+                    size: [h, w, c],
+                    kernel: [kernel[0], kernel[1]],
+                    stride: [strides[0], strides[1]],
+                    out,
+                },
             },
         );
         self.define_tensor(output, to, vec![1, c, out[0], out[1]], Layout::Nhwc)

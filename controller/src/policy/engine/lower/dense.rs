@@ -6,14 +6,8 @@ use super::*;
 impl Lowerer {
     pub(super) fn gemm(&mut self, op: &Operation<'_>) -> Lowered<()> {
         let (node, attributes, output) = (op.node, &op.attributes, op.output);
-        let a = node
-            .input
-            .first()
-            .ok_or_else(|| Unsupported("no A".into()))?;
-        let b = node
-            .input
-            .get(1)
-            .ok_or_else(|| Unsupported("no B".into()))?;
+        let a = node.input.first().or_unsupported("no A")?;
+        let b = node.input.get(1).or_unsupported("no B")?;
         if attributes.int("transA").unwrap_or(0) != 0 {
             return unsupported("transA");
         }
@@ -64,7 +58,7 @@ impl Lowerer {
 
     pub(super) fn matmul(&mut self, a: &str, b: Option<&str>, output: &str) -> Lowered<()> {
         let (x, x_shape) = self.tensor(a)?;
-        let (weights, w_shape) = self.weights(b.ok_or_else(|| Unsupported("no B".into()))?)?;
+        let (weights, w_shape) = self.weights(b.or_unsupported("no B")?)?;
         let [k, n] = w_shape[..] else {
             return unsupported(format!("B of shape {w_shape:?}"));
         };

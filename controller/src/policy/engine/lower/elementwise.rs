@@ -53,7 +53,7 @@ impl Lowerer {
         b: Option<&str>,
         output: &str,
     ) -> Lowered<()> {
-        let b = b.ok_or_else(|| Unsupported("one operand".into()))?;
+        let b = b.or_unsupported("one operand")?;
         // A constant row added to a dense layer's output that only it reads: into the bias.
         if op == "Add" {
             for (product, addend) in [(a, b), (b, a)] {

@@ -26,6 +26,7 @@ use std::collections::HashMap;
 
 use tract_onnx::pb;
 
+use super::kernels::PoolShape;
 use super::kernels::int8::Int8Kernel;
 use super::kernels::winograd;
 use super::layout::{AlignedWeights, BufferId, ConvShape, DenseWeights, Grid, MAX_RANK, Strided};
@@ -93,6 +94,17 @@ fn declared_shape(tensor: &pb::TensorProto) -> Lowered<Vec<usize>> {
 
 fn unsupported<T>(why: impl Into<String>) -> Lowered<T> {
     Err(Unsupported(why.into()))
+}
+
+/// An absent value as an unsupported graph, `why` saying what is missing.
+trait OrUnsupported<T> {
+    fn or_unsupported(self, why: &str) -> Lowered<T>;
+}
+
+impl<T> OrUnsupported<T> for Option<T> {
+    fn or_unsupported(self, why: &str) -> Lowered<T> {
+        self.ok_or_else(|| Unsupported(why.to_owned()))
+    }
 }
 
 /// How a float value's numbers lie in its buffer.
@@ -173,16 +185,13 @@ pub(crate) fn lower(
     winograd: Option<winograd::Fit>,
     int8: Int8Kernel,
 ) -> Lowered<Lowering> {
-    let graph = model
-        .graph
-        .as_ref()
-        .ok_or_else(|| Unsupported("no graph".into()))?;
+    let graph = model.graph.as_ref().or_unsupported("no graph")?;
     let opset = model
         .opset_import
         .iter()
         .find(|import| import.domain.is_empty() || import.domain == "ai.onnx")
         .map(|import| import.version)
-        .ok_or_else(|| Unsupported("no operator set for the default domain".into()))?;
+        .or_unsupported("no operator set for the default domain")?;
     let mut lowerer = Lowerer {
         values: HashMap::new(),
         buffers: Vec::new(),
@@ -455,7 +464,7 @@ impl Lowerer {
             .output
             .first()
             .map(String::as_str)
-            .ok_or_else(|| Unsupported("no output".into()))?;
+            .or_unsupported("no output")?;
         let op = Operation {
             node,
             attributes: Attributes(&node.attribute),
@@ -498,7 +507,7 @@ impl Lowerer {
             }
             "Reshape" => {
                 let (buffer, shape) = self.tensor(first()?)?;
-                let target = self.ints(input(1).ok_or_else(|| Unsupported("no shape".into()))?)?;
+                let target = self.ints(input(1).or_unsupported("no shape")?)?;
                 let reshaped = reshape(
                     &shape,
                     &target,
@@ -610,7 +619,7 @@ impl<'n> Operation<'n> {
     }
 
     fn first(&self) -> Lowered<&'n str> {
-        self.input(0).ok_or_else(|| Unsupported("no input".into()))
+        self.input(0).or_unsupported("no input")
     }
 }
 
@@ -699,11 +708,7 @@ fn reshape(shape: &[usize], target: &[i64], allow_zero: bool) -> Lowered<Vec<usi
                 infer = Some(d);
                 out.push(1);
             }
-            0 if !allow_zero => out.push(
-                *shape
-                    .get(d)
-                    .ok_or_else(|| Unsupported("reshape 0 past the rank".into()))?,
-            ),
+            0 if !allow_zero => out.push(*shape.get(d).or_unsupported("reshape 0 past the rank")?),
             t if t >= 0 => out.push(dimension(t)?),
             _ => return unsupported(format!("reshape to {target:?}")),
         }
@@ -753,9 +758,7 @@ fn squeeze_shape(shape: &[usize], axes: &[i64], squeeze: bool) -> Lowered<Vec<us
                 if axes.contains(&d) {
                     Ok(1)
                 } else {
-                    rest.next()
-                        .copied()
-                        .ok_or_else(|| Unsupported("unsqueeze axes".into()))
+                    rest.next().copied().or_unsupported("unsqueeze axes")
                 }
             })
             .collect()

@@ -157,7 +157,7 @@ impl Lowerer {
         let scale = self.single_float(scale_name)?;
         let zero = self
             .uint8_zero(zero_name)
-            .ok_or_else(|| Unsupported("a zero point that is not one uint8".into()))?;
+            .or_unsupported("a zero point that is not one uint8")?;
         let Value::Tensor { boolean: false, .. } = self.value(x)? else {
             return unsupported("quantizing something that is not a float tensor");
         };
@@ -510,7 +510,7 @@ fn quantization_inputs<'n>(
 ) -> Lowered<(&'n String, &'n String, Option<&'n String>)> {
     Lowerer::plain_quantization(attributes)?;
     let input = |i: usize| node.input.get(i).filter(|s| !s.is_empty());
-    let value = input(0).ok_or_else(|| Unsupported("no input".into()))?;
-    let scale = input(1).ok_or_else(|| Unsupported("no scale".into()))?;
+    let value = input(0).or_unsupported("no input")?;
+    let scale = input(1).or_unsupported("no scale")?;
     Ok((value, scale, input(2)))
 }

@@ -25,12 +25,12 @@ impl Lowerer {
         if input(4).is_some() || input(7).is_some() {
             return unsupported("sequence lengths or peepholes");
         }
-        let (x, x_shape) = self.tensor(input(0).ok_or_else(|| Unsupported("no X".into()))?)?;
+        let (x, x_shape) = self.tensor(input(0).or_unsupported("no X")?)?;
         let [1, 1, features] = x_shape[..] else {
             return unsupported(format!("X of shape {x_shape:?}: one step of one sequence"));
         };
-        let (w, w_shape) = self.weights(input(1).ok_or_else(|| Unsupported("no W".into()))?)?;
-        let (r, r_shape) = self.weights(input(2).ok_or_else(|| Unsupported("no R".into()))?)?;
+        let (w, w_shape) = self.weights(input(1).or_unsupported("no W")?)?;
+        let (r, r_shape) = self.weights(input(2).or_unsupported("no R")?)?;
         let units = r_shape.last().copied().unwrap_or(0);
         // units and features come from constants' shapes (at most MAX_ELEMENTS each).
         if units == 0 || w_shape != [1, 4 * units, features] || r_shape != [1, 4 * units, units] {

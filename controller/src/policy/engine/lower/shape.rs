@@ -95,7 +95,7 @@ impl Lowerer {
         let (attributes, input, output) = (&op.attributes, op.first()?, op.output);
         let indices = op.input(1);
         let (buffer, shape) = self.tensor(input)?;
-        let indices_name = indices.ok_or_else(|| Unsupported("no indices".into()))?;
+        let indices_name = indices.or_unsupported("no indices")?;
         let Value::Ints {
             values,
             shape: index_shape,
@@ -163,7 +163,7 @@ impl Lowerer {
             }
             joined[axis] = joined[axis]
                 .checked_add(shape[axis])
-                .ok_or_else(|| Unsupported("a concatenation too long".into()))?;
+                .or_unsupported("a concatenation too long")?;
         }
         let (outer, inner) = copied_slices(first, axis, parts.len(), "a concatenation")?;
         let to = self.buffer(elements(&joined)?)?;

@@ -215,36 +215,39 @@ unsafe fn max<const PMAXSD: bool>(a: __m128i, b: __m128i) -> __m128i {
     }
 }
 
-/// [`pooled_row`] compiled for SSSE3.
+/// [`pooled_row`] compiled for the target features `features`, its maximum SSE4.1's
+/// `pmaxsd` where `PMAXSD` (one function each: `#[target_feature]` takes no generics).
 ///
-/// # Safety
-/// As [`pooled_row`], the CPU with SSSE3.
-#[target_feature(enable = "ssse3")]
-pub(super) unsafe fn pooled_row_ssse3(
-    weights: &PooledPixelWeights,
-    codes: &[u8],
-    py: usize,
-    pw: usize,
-    sums: &mut [i32],
-) {
-    // SAFETY: the caller's promise.
-    unsafe { pooled_row::<false>(weights, codes, py, pw, sums) }
+/// # Safety (each function)
+/// As [`pooled_row`], the CPU with the features named.
+macro_rules! pooled_row_compiled_for {
+    ($($(#[$doc:meta])* $name:ident: $features:literal, $pmaxsd:literal;)*) => {$(
+        $(#[$doc])*
+        #[target_feature(enable = $features)]
+        pub(super) unsafe fn $name(
+            weights: &PooledPixelWeights,
+            codes: &[u8],
+            py: usize,
+            pw: usize,
+            sums: &mut [i32],
+        ) {
+            // SAFETY: the caller's promise.
+            unsafe { pooled_row::<$pmaxsd>(weights, codes, py, pw, sums) }
+        }
+    )*};
 }
 
-/// [`pooled_row`] compiled for SSE4.1 (with SSSE3's `pmaddubsw`).
-///
-/// # Safety
-/// As [`pooled_row`], the CPU with SSSE3 and SSE4.1.
-#[target_feature(enable = "ssse3,sse4.1")]
-pub(super) unsafe fn pooled_row_sse41(
-    weights: &PooledPixelWeights,
-    codes: &[u8],
-    py: usize,
-    pw: usize,
-    sums: &mut [i32],
-) {
-    // SAFETY: the caller's promise.
-    unsafe { pooled_row::<true>(weights, codes, py, pw, sums) }
+pooled_row_compiled_for! {
+    /// [`pooled_row`] compiled for SSSE3.
+    ///
+    /// # Safety
+    /// As [`pooled_row`], the CPU with SSSE3.
+    pooled_row_ssse3: "ssse3", false;
+    /// [`pooled_row`] compiled for SSE4.1 (with SSSE3's `pmaddubsw`).
+    ///
+    /// # Safety
+    /// As [`pooled_row`], the CPU with SSSE3 and SSE4.1.
+    pooled_row_sse41: "ssse3,sse4.1", true;
 }
 
 #[cfg(test)]
