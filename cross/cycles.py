@@ -342,12 +342,33 @@ int main(void) {
 
 
 def host_mcpu() -> str:
-    flags = Path("/proc/cpuinfo").read_text()
-    if "amx_tile" in flags:
+    """LLVM's name for this host's core: AMD's Zen generations by family and model (the
+    machines here have been both Intel's and AMD's, and an Intel model of an AMD core
+    schedules with the wrong units), Intel's by the newest feature it has."""
+    cpuinfo = Path("/proc/cpuinfo").read_text()
+    if "AuthenticAMD" in cpuinfo:
+        family = int(re.search(r"^cpu family\s*:\s*(\d+)", cpuinfo, re.M).group(1))
+        model = int(re.search(r"^model\s*:\s*(\d+)", cpuinfo, re.M).group(1))
+        return amd_mcpu(family, model)
+    if "amx_tile" in cpuinfo:
         return "sapphirerapids"
-    if "avx512f" in flags:
-        return "icelake-server" if "avx512_vbmi2" in flags else "skylake-avx512"
-    return "skylake" if "avx2" in flags else "x86-64"
+    if "avx512f" in cpuinfo:
+        return "icelake-server" if "avx512_vbmi2" in cpuinfo else "skylake-avx512"
+    return "skylake" if "avx2" in cpuinfo else "x86-64"
+
+
+def amd_mcpu(family: int, model: int) -> str:
+    """Zen 1 to 5 from the CPUID family and model (AMD's processor programming references):
+    family 17h is Zen and Zen+ below model 30h, Zen 2 from it; 19h is Zen 3 except the Zen 4
+    ranges 10h-1Fh (Genoa), 60h-7Fh and A0h-AFh; 1Ah is Zen 5."""
+    if family == 0x17:
+        return "znver1" if model < 0x30 else "znver2"
+    if family == 0x19:
+        zen4 = 0x10 <= model <= 0x1F or 0x60 <= model <= 0x7F or 0xA0 <= model <= 0xAF
+        return "znver4" if zen4 else "znver3"
+    if family >= 0x1A:
+        return "znver5"
+    return "x86-64"
 
 
 def layer_times(binary: str, policy: str, isa: str, runs: int) -> list[dict]:

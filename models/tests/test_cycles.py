@@ -81,3 +81,14 @@ def test_calls_leave_the_model_and_the_atoms_read_tzcnt_as_bsf():
     assert cycles.for_the_model("vmovdqu (%rsi),%ymm1", "silvermont") == ""
     assert cycles.for_the_model("bzhi %edx,%eax,%edx", "atom") == ""
     assert cycles.for_the_model("vmovdqu (%rsi),%ymm1", "sapphirerapids") == "vmovdqu (%rsi),%ymm1"
+
+
+def test_an_amd_host_is_modelled_by_its_zen_generation():
+    cycles = cycles_tool()
+    assert cycles.amd_mcpu(0x17, 0x01) == "znver1"
+    assert cycles.amd_mcpu(0x17, 0x31) == "znver2"
+    assert cycles.amd_mcpu(0x19, 0x01) == "znver3"
+    assert cycles.amd_mcpu(0x19, 0x11) == "znver4"  # Genoa
+    assert cycles.amd_mcpu(0x19, 0x21) == "znver3"  # Vermeer
+    assert cycles.amd_mcpu(0x19, 0x61) == "znver4"  # Raphael
+    assert cycles.amd_mcpu(0x1A, 0x02) == "znver5"
