@@ -8,7 +8,8 @@ scheduling model (issue 49).
 
 `estimate` runs the workload under callgrind with `--steps 1` and `--steps 11` (the
 `dribble-controller forward` options; the difference is ten steps, start-up and loading
-taken out), disassembles every object the hot instructions live in (`objdump`), cuts them
+taken out; a hundred for a single layer, whose steps are too short for ten to outweigh the
+difference between two loads), disassembles every object the hot instructions live in (`objdump`), cuts them
 into blocks (a run of consecutive instructions with the same count, ended by a jump, call
 or return), and asks `llvm-mca` for each block's cycles an iteration in steady state
 (`-iterations=100`, one file with a region a block). The estimate is the sum of count x
@@ -262,15 +263,25 @@ def string_iteration_cycles(text: str, mcpu: str) -> float:
     return width / 32.0
 
 
-def estimate(binary: str, workload: list[str], triple: str, mcpu: str, runner: list[str] | None = None) -> dict:
-    """Instructions and cycles of one step of `workload` (its `--steps 11` minus `--steps 1`,
-    over ten)."""
+#: Steps between the two counted runs of a single layer. Loading a model does not take the
+#: same instructions twice (tract's hash maps are seeded at random: two loads of the robot
+#: package's model differ by about 80,000 instructions), and over ten steps that difference
+#: passed for a tenth of it in each step: a 23,000-instruction layer counted as 50,000. Over
+#: a hundred steps it is a hundredth.
+LAYER_STEPS = 100
+
+
+def estimate(binary: str, workload: list[str], triple: str, mcpu: str, runner: list[str] | None = None,
+             steps: int = 10) -> dict:
+    """Instructions and cycles of one step of `workload`: its `--steps 1 + steps` minus its
+    `--steps 1`, over `steps` (ten for whole passes and ticks, whose steps dwarf the loads'
+    differences; [`LAYER_STEPS`] for a single layer)."""
     base = [*(runner or []), binary, *workload]
     one = callgrind_counts([*base, "--steps", "1"])
-    eleven = callgrind_counts([*base, "--steps", "11"])
+    more = callgrind_counts([*base, "--steps", str(1 + steps)])
     per_step: dict[tuple[str, int], float] = {}
-    for key in set(one) | set(eleven):
-        difference = (eleven.get(key, 0) - one.get(key, 0)) / 10.0
+    for key in set(one) | set(more):
+        difference = (more.get(key, 0) - one.get(key, 0)) / steps
         if difference > 0:
             per_step[key] = difference
     bits = 32 if triple.startswith("i686") else 64
@@ -312,15 +323,17 @@ def estimate(binary: str, workload: list[str], triple: str, mcpu: str, runner: l
 def host_ghz() -> float:
     """This core's clock while busy: a chain of dependent 64-bit multiplications, three
     cycles each on every Intel core since Nehalem (a chain of additions of a constant is
-    not a clock: Golden Cove's renamer folds them, about 20 "GHz" here), timed."""
+    not a clock: Golden Cove's renamer folds them, about 20 "GHz" here), timed: the fastest of
+    500 runs of about 2 ms each, so that on a shared machine some run within one time slice
+    (five runs of 200 ms read 2.2 GHz for 3.0 with two evaluation jobs beside)."""
     source = r"""
 #include <stdio.h>
 #include <time.h>
 int main(void) {
-    unsigned long n = 600000000UL, x = 3, y = 5;
+    unsigned long n = 6000000UL, x = 3, y = 5;
     struct timespec a, b;
     double best = 1e9;
-    for (int r = 0; r < 5; r++) {
+    for (int r = 0; r < 500; r++) {
         clock_gettime(CLOCK_MONOTONIC, &a);
         for (unsigned long i = 0; i < n; i += 30)
             __asm__ volatile("imul %1,%0\n imul %1,%0\n imul %1,%0\n imul %1,%0\n imul %1,%0\n"
@@ -411,7 +424,8 @@ def check(args) -> None:
         if case["layer"] is not None:
             workload = ["forward", "--policy", f"{case['policy']}/policy.toml", "--isa", case["isa"],
                         "--layer", str(case["layer"])]
-        model = estimate(binary, workload, "x86_64-unknown-linux-gnu", mcpu)
+        steps = 10 if case["layer"] is None else LAYER_STEPS
+        model = estimate(binary, workload, "x86_64-unknown-linux-gnu", mcpu, steps=steps)
         if case["layer"] is None:
             seconds = forward_min_seconds(binary, f"{case['policy']}/policy.toml", case["isa"], 2000)
         else:
@@ -437,7 +451,7 @@ def check(args) -> None:
         "median_error": statistics.median(errors),
         "error_p10": sorted(errors)[len(errors) // 10], "error_p90": sorted(errors)[(9 * len(errors)) // 10],
         "rows": rows,
-        "method": "model: callgrind counts (steps 11 - steps 1) x llvm-mca steady-state cycles per block; "
+        "method": "model: callgrind counts (steps 11 - steps 1; a layer: steps 101 - steps 1) x llvm-mca steady-state cycles per block; "
                   "measured: fastest of 2000 runs x the clock of a chain of dependent multiplications",
     }
     text = json.dumps(summary, indent=2)
@@ -491,7 +505,7 @@ def profile(args) -> None:
     for row in layers:
         print(f"  layer {row['index']}: {row['name']} ...", file=sys.stderr)
         model = estimate(args.binary, ["--isa", args.isa, "forward", "--policy", policy, "--layer", str(row["index"])],
-                         args.triple, args.mcpu, runner)
+                         args.triple, args.mcpu, runner, steps=LAYER_STEPS)
         rows.append({
             "index": row["index"], "name": row["name"], "multiply_adds": row["multiply_adds"],
             "weight_bytes": row["weight_bytes"], "activation_bytes": row["activation_bytes"],
