@@ -69,7 +69,9 @@ pub(crate) struct PoolShape {
 
 /// A convolution's pool as [`Kernels::single_channel_conv_pool`] computes it: the pool's
 /// window, stride and pooled size, the padded image, the kernel's scratch, the pooled map.
+/// Only x86-64 has that kernel; elsewhere the plan builds the struct and nothing reads it.
 #[derive(Debug)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub(crate) struct PooledConv<'a> {
     pub pool: [[usize; 2]; 3],
     pub padded: &'a [f32],
