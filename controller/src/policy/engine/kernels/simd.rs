@@ -666,12 +666,8 @@ unsafe fn conv_tap<V: Vector, const VECS: usize, const P: usize>(
 /// of vectors go to that scalar version.
 #[inline(always)]
 pub(crate) fn max_pool<V: Vector>(input: &[f32], shape: PoolShape, out: &mut [f32]) {
-    let PoolShape {
-        size: [_, w, c],
-        kernel,
-        stride,
-        out: [oh, ow],
-    } = shape;
+    let ([_, w, c], [oh, ow]) = (shape.size, shape.out);
+    let (kernel, stride) = (shape.kernel, shape.stride);
     if c == 0 || !c.is_multiple_of(V::LANES) {
         super::portable::max_pool_nhwc(input, shape, out);
         return;
