@@ -19,6 +19,12 @@
 //! The sums are the exact integer sums the window kernels compute (no weight reaches 64, so
 //! `pmaddubsw` cannot saturate: [`super::MAX_WEIGHT`]): the epilogue after them gives the same
 //! numbers bit for bit.
+//!
+//! Where a layer's weights allow it ([`PooledPixelWeights::sums_fit_16_bits`], checked when
+//! the layer is loaded), an output's two `pmaddubsw` of a kernel row are added in 16 bits
+//! before the one `pmaddwd` that widens them: six multiplies a kernel row and output where
+//! eight were. The V6's Silvermont issues every multiply (and `pshufd`) on one port, two
+//! cycles each, so the multiplies bound this kernel there (llvm-mca `silvermont`).
 // The vector kernels are `unsafe`: intrinsics of a `#[target_feature]` the caller checked.
 #![allow(unsafe_code)]
 
@@ -45,6 +51,9 @@ pub(crate) struct PooledPixelWeights {
     rows: usize,
     /// The code map's width (padded).
     padded_width: usize,
+    /// Whether each output's two products of a code pair's lanes ([`Self::sums_fit_16_bits`])
+    /// stay inside 16 bits for every code.
+    sums_fit_16_bits: bool,
 }
 
 impl PooledPixelWeights {
@@ -85,11 +94,25 @@ impl PooledPixelWeights {
                 }
             }
         }
+        let sums_fit_16_bits = vectors.chunks_exact(2).all(|pair| {
+            let [Lanes(a), Lanes(b)] = [pair[0], pair[1]];
+            (0..2).all(|p| sum_fits_16_bits([a[2 * p], a[2 * p + 1], b[2 * p], b[2 * p + 1]]))
+        });
         Some(Self {
             vectors,
             rows,
             padded_width,
+            sums_fit_16_bits,
         })
+    }
+
+    /// Whether the kernel adds an output's two `pmaddubsw` of a kernel row in 16 bits: where
+    /// for every row, output and side (the window's left and right output, whose taps are
+    /// split over the two loads) the four weights that meet in one 16-bit lane of the sum
+    /// give a sum inside `i16` for every code from 0 to 255. Then the 16-bit sum is the exact
+    /// one, and one `pmaddwd` widens it where two did.
+    pub(crate) fn sums_fit_16_bits(&self) -> bool {
+        self.sums_fit_16_bits
     }
 
     /// Whether the kernel computes a pool of this shape: 2x2 windows, stride 2, pooled rows at
@@ -108,16 +131,26 @@ impl PooledPixelWeights {
     }
 }
 
+/// Whether `weights` times any four codes from 0 to 255 sums to a value an `i16` holds.
+fn sum_fits_16_bits(weights: [i8; 4]) -> bool {
+    let code = i32::from(u8::MAX);
+    let most: i32 = weights.iter().map(|&w| i32::from(w).max(0) * code).sum();
+    let least: i32 = weights.iter().map(|&w| i32::from(w).min(0) * code).sum();
+    most <= i32::from(i16::MAX) && least >= i32::from(i16::MIN)
+}
+
 /// The row `py` of pooled sums, `sums[q * 4 + o]` for the `pw` pooled pixels `q` and each
 /// output `o`: the largest of the pool window's four exact integer sums. `pmaxsd` selects
 /// SSE4.1's maximum (the V6 and every AVX2 CPU), else SSSE3's comparison and masks.
+/// `FIT_16_BITS` adds each output's two products in 16 bits: only where
+/// [`PooledPixelWeights::sums_fit_16_bits`].
 ///
 /// # Safety
 /// The CPU must have SSSE3 (and SSE4.1 with `pmaxsd`), and
 /// [`PooledPixelWeights::takes_pool`] must hold for `[[2, 2], [2, 2], [ph, pw]]` with `py <
 /// ph` and `codes.len()`.
 #[inline(always)]
-unsafe fn pooled_row<const PMAXSD: bool>(
+unsafe fn pooled_row<const PMAXSD: bool, const FIT_16_BITS: bool>(
     weights: &PooledPixelWeights,
     codes: &[u8],
     py: usize,
@@ -152,6 +185,19 @@ unsafe fn pooled_row<const PMAXSD: bool>(
                     let outputs = left_sums.iter_mut().zip(right_sums.iter_mut());
                     for (o, (left_sum, right_sum)) in outputs.enumerate() {
                         let w = w.add(o * 4);
+                        if FIT_16_BITS {
+                            let left = _mm_add_epi16(
+                                _mm_maddubs_epi16(first, _mm_load_si128(w)),
+                                _mm_maddubs_epi16(second, _mm_load_si128(w.add(1))),
+                            );
+                            let right = _mm_add_epi16(
+                                _mm_maddubs_epi16(first, _mm_load_si128(w.add(2))),
+                                _mm_maddubs_epi16(second, _mm_load_si128(w.add(3))),
+                            );
+                            *left_sum = _mm_add_epi32(*left_sum, _mm_madd_epi16(left, ones));
+                            *right_sum = _mm_add_epi32(*right_sum, _mm_madd_epi16(right, ones));
+                            continue;
+                        }
                         let left = _mm_add_epi32(
                             _mm_madd_epi16(_mm_maddubs_epi16(first, _mm_load_si128(w)), ones),
                             _mm_madd_epi16(
@@ -231,8 +277,14 @@ macro_rules! pooled_row_compiled_for {
             pw: usize,
             sums: &mut [i32],
         ) {
-            // SAFETY: the caller's promise.
-            unsafe { pooled_row::<$pmaxsd>(weights, codes, py, pw, sums) }
+            // SAFETY: the caller's promise; the 16-bit sums only where the weights allow.
+            unsafe {
+                if weights.sums_fit_16_bits() {
+                    pooled_row::<$pmaxsd, true>(weights, codes, py, pw, sums)
+                } else {
+                    pooled_row::<$pmaxsd, false>(weights, codes, py, pw, sums)
+                }
+            }
         }
     )*};
 }
@@ -286,9 +338,16 @@ mod tests {
         sums
     }
 
-    fn check(codes: &[u8], ordered: &[i8], padded: [usize; 2], pooled: [usize; 2]) {
+    fn check(
+        codes: &[u8],
+        ordered: &[i8],
+        padded: [usize; 2],
+        pooled: [usize; 2],
+        fit_16_bits: bool,
+    ) {
         let weights = PooledPixelWeights::new(ordered, [OUTPUTS, 1], [5, 5], [2, 2], padded[1])
             .expect("the kernel's layer");
+        assert_eq!(weights.sums_fit_16_bits(), fit_16_bits, "which sums the kernel takes");
         let pool = [[2, 2], [2, 2], pooled];
         assert!(weights.takes_pool(pool, codes.len()));
         let expected = reference(codes, padded[1], ordered, 5, pooled);
@@ -333,16 +392,28 @@ mod tests {
             ([28, 40], [6, 9]),
         ] {
             let codes: Vec<u8> = (0..padded[0] * padded[1]).map(|_| next() as u8).collect();
-            let ordered: Vec<i8> = (0..OUTPUTS * 25)
+            // Weights from -64 to 64, a row's taps 0, 1 and 4 (which meet in one lane) 64
+            // (the 16-bit sums refused), and from -42 to 42 (taken: 3 x 42 x 255 = 32,130).
+            let mut wide: Vec<i8> = (0..OUTPUTS * 25)
                 .map(|_| (next() % 129) as i8 - 64)
                 .collect();
-            check(&codes, &ordered, padded, pooled);
+            for tap in [0, 1, 4] {
+                wide[tap] = 64;
+            }
+            let narrow: Vec<i8> = (0..OUTPUTS * 25).map(|_| (next() % 85) as i8 - 42).collect();
+            check(&codes, &wide, padded, pooled, false);
+            check(&codes, &narrow, padded, pooled, true);
         }
-        // The worst case for the 16-bit pair sums: every code 255, every weight -64 or 64.
+        // The worst cases for the 16-bit sums: every code 255 and every weight -64 or 64
+        // (refused), -42 or 42 (taken, at most 32,130 of 32,767).
         let codes = vec![255; 28 * 40];
-        for weight in [-64, 64] {
-            check(&codes, &[weight; OUTPUTS * 25], [28, 40], [6, 9]);
+        for (weight, fit) in [(-64, false), (64, false), (-42, true), (42, true)] {
+            check(&codes, &[weight; OUTPUTS * 25], [28, 40], [6, 9], fit);
         }
+        // Just past the limit in one lane: taps 0, 1 and 4 of one row, 3 x 43 x 255 = 32,895.
+        let mut edge = [0i8; OUTPUTS * 25];
+        edge[..5].copy_from_slice(&[43, 43, 0, 0, 43]);
+        check(&codes, &edge, [28, 40], [6, 9], false);
     }
 
     #[test]

@@ -38,6 +38,7 @@ macro_rules! products {
 /// the input, the ones, two products). Fewer than four only for a row's last group, whose
 /// other quads hold nothing but padding ([`row_asm`]).
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+#[cfg_attr(target_arch = "x86_64", allow(unused_macros))]
 macro_rules! products16 {
     (@quad $quad:literal, $o0:literal, $o1:literal, $o2:literal, $o3:literal) => {
         concat!(
@@ -56,6 +57,49 @@ macro_rules! products16 {
     };
     (4) => {
         concat!(products16!(3), products16!(@quad "0xff", "192", "208", "224", "240"))
+    };
+}
+
+/// [`products16`] with the four products of a quad side by side, for the V6 (x86-64's
+/// sixteen vector registers: the sums, the input, the ones and four products): one `pshufd`
+/// spreads the quad, three `movdqa` copy it for the other three products. On the V6's
+/// Silvermont the products' multiplies and `pshufd` share one port and each multiply waits
+/// five cycles for its operand: two products side by side left that port idle in between
+/// (llvm-mca `silvermont`, one group: 115 cycles two side by side, 84 four, 79 with copies
+/// in place of three of the four `pshufd`; the multiplies' floor is 64).
+#[cfg(target_arch = "x86_64")]
+macro_rules! products16_wide {
+    (@quad $quad:literal, $o0:literal, $o1:literal, $o2:literal, $o3:literal) => {
+        concat!(
+            "pshufd {t0}, {xs}, ", $quad, "\n",
+            "movdqa {t1}, {t0}\n",
+            "movdqa {t2}, {t0}\n",
+            "movdqa {t3}, {t0}\n",
+            "pmaddubsw {t0}, xmmword ptr [{w} + ", $o0, "]\n",
+            "pmaddubsw {t1}, xmmword ptr [{w} + ", $o1, "]\n",
+            "pmaddubsw {t2}, xmmword ptr [{w} + ", $o2, "]\n",
+            "pmaddubsw {t3}, xmmword ptr [{w} + ", $o3, "]\n",
+            "pmaddwd {t0}, {ones}\n",
+            "pmaddwd {t1}, {ones}\n",
+            "pmaddwd {t2}, {ones}\n",
+            "pmaddwd {t3}, {ones}\n",
+            "paddd {s0}, {t0}\n",
+            "paddd {s1}, {t1}\n",
+            "paddd {s2}, {t2}\n",
+            "paddd {s3}, {t3}\n",
+        )
+    };
+    (1) => {
+        products16_wide!(@quad "0x00", "0", "16", "32", "48")
+    };
+    (2) => {
+        concat!(products16_wide!(1), products16_wide!(@quad "0x55", "64", "80", "96", "112"))
+    };
+    (3) => {
+        concat!(products16_wide!(2), products16_wide!(@quad "0xaa", "128", "144", "160", "176"))
+    };
+    (4) => {
+        concat!(products16_wide!(3), products16_wide!(@quad "0xff", "192", "208", "224", "240"))
     };
 }
 
@@ -339,17 +383,27 @@ pub(crate) unsafe fn u8s8_max_product_ssse3(
     }
 }
 
+#[cfg(target_arch = "x86")]
+ssse3_kernel!(
+    /// The 32-bit build (the V5) of the 16-wide kernel, which x86-64's build documents: two
+    /// products side by side ([`products16`]), as the V5's eight vector registers allow.
+    u8s8_max_product_16c_ssse3, products16, "256", 16, 4, [s0, s1, s2, s3], [t0, t1]
+);
+
+#[cfg(target_arch = "x86_64")]
 ssse3_kernel!(
     /// [`u8s8_max_product_scalar`] with SSSE3 (`pmaddubsw`, `pmaddwd`) on 128-bit vectors, panels of
     /// 16 outputs held in four registers. The inputs are read a group (sixteen bytes) at a
     /// time: one load, with [`ZeroGroups::Skip`] one test that skips sixteen zero inputs, and
-    /// `pshufd` to spread each quad over the lanes, which also gives `pmaddubsw` the copy it
-    /// overwrites; the weights are its aligned memory operand. That is four instructions per
-    /// sixteen outputs of a quad, with the sums, the input, the ones and two products side by
-    /// side in the V5's eight registers. Each row's sums then go into the running maxima in memory
+    /// `pshufd` to spread each quad over the lanes and `movdqa` to copy it for the quad's
+    /// other products (`pmaddubsw` overwrites its operand); the weights are `pmaddubsw`'s
+    /// aligned memory operand. That is four instructions per sixteen outputs of a quad, with
+    /// the sums, the input, the ones and four products side
+    /// by side ([`products16_wide`]; the 32-bit build for the V5, in its eight registers, two:
+    /// [`products16`]). Each row's sums then go into the running maxima in memory
     /// ([`merge_largest`]). The row loop is in assembly ([`row_asm`]; callgrind, int8 CNN
     /// forward: V5 6.46 M -> 5.57 M, V6 4.86 M -> 4.64 M).
-    u8s8_max_product_16c_ssse3, products16, "256", 16, 4, [s0, s1, s2, s3], [t0, t1]
+    u8s8_max_product_16c_ssse3, products16_wide, "256", 16, 4, [s0, s1, s2, s3], [t0, t1, t2, t3]
 );
 
 ssse3_kernel!(
