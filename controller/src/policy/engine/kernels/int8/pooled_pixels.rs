@@ -347,7 +347,11 @@ mod tests {
     ) {
         let weights = PooledPixelWeights::new(ordered, [OUTPUTS, 1], [5, 5], [2, 2], padded[1])
             .expect("the kernel's layer");
-        assert_eq!(weights.sums_fit_16_bits(), fit_16_bits, "which sums the kernel takes");
+        assert_eq!(
+            weights.sums_fit_16_bits(),
+            fit_16_bits,
+            "which sums the kernel takes"
+        );
         let pool = [[2, 2], [2, 2], pooled];
         assert!(weights.takes_pool(pool, codes.len()));
         let expected = reference(codes, padded[1], ordered, 5, pooled);
@@ -400,7 +404,9 @@ mod tests {
             for tap in [0, 1, 4] {
                 wide[tap] = 64;
             }
-            let narrow: Vec<i8> = (0..OUTPUTS * 25).map(|_| (next() % 85) as i8 - 42).collect();
+            let narrow: Vec<i8> = (0..OUTPUTS * 25)
+                .map(|_| (next() % 85) as i8 - 42)
+                .collect();
             check(&codes, &wide, padded, pooled, false);
             check(&codes, &narrow, padded, pooled, true);
         }
