@@ -83,5 +83,12 @@ def page(directory: Path = SOAKS) -> str:
         "robot runs a preemptible kernel on cores of its own; the soak is the tool to check it there.",
         "CI runs a one-minute soak with a loose limit.",
         "",
+        "The `-robot` rows are the robot package's int8 policy (`scripts/soak --minutes 60 --isa ISA",
+        "--policy robot --faults --publish`), its kernels chosen by `--isa`: SSSE3 is the V5's path,",
+        "AVX2+FMA the host's widest int8 path. They ran on 2026-11-29 beside two closed-loop",
+        "evaluation jobs (lavapipe rendering on both virtual CPUs), not on a quiet machine: their",
+        "misses are an upper bound for this VM, and what they show is an hour of the int8 kernels with",
+        "nothing lost, memory flat and every injected fault answered.",
+        "",
     ]
     return "\n".join(lines)
