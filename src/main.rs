@@ -4,6 +4,17 @@
 //! trajectories file and its figure), `soak/` (faults and the motion module's side), and
 //! `controller_session` (finding, starting and reading the controller process).
 
+#[cfg(test)]
+/// This package's directory: the one cargo names when it runs the test (`CARGO_MANIFEST_DIR`
+/// in the environment: the checkout under test, even when its build directory was shared with
+/// a checkout elsewhere), else the one the test was compiled in.
+pub(crate) fn package_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(
+        || env!("CARGO_MANIFEST_DIR").into(),
+        std::path::PathBuf::from,
+    )
+}
+
 mod commands;
 mod controller_session;
 mod dataset_pictures;

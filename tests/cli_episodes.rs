@@ -1,5 +1,7 @@
 //! `dribble record`, `inspect` and `eval` as a team would run them.
 
+mod support;
+
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -340,7 +342,7 @@ fn eval_with_the_expert_counts_goals_and_plots() {
 #[test]
 fn eval_drives_with_a_learned_policy_through_the_rendered_cameras() {
     let plot = scratch("eval-policy").with_extension("png");
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/cnn/policy.toml");
+    let manifest = support::package_dir().join("models/fixtures/cnn/policy.toml");
     let output = dribble(&[
         "eval",
         "--driver",
@@ -402,8 +404,7 @@ fn truncate_npz_member(path: &Path, member: &str, by: usize) {
 
 #[test]
 fn episodes_in_parallel_jobs_end_as_in_one_serial_run() {
-    let policy =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy/cnn-modal-dagger4/policy.toml");
+    let policy = support::package_dir().join("models/policy/cnn-modal-dagger4/policy.toml");
     let run = |name: &str, jobs: &str| {
         let out = scratch(name);
         fs::create_dir_all(&out).expect("scratch");

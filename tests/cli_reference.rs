@@ -74,7 +74,7 @@ fn reference_page() -> String {
 
 #[test]
 fn the_books_command_line_reference_is_the_tools_help() {
-    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/src/reference/cli.md");
+    let committed = support::package_dir().join("docs/src/reference/cli.md");
     let generated = reference_page();
     if std::env::var_os("DRIBBLE_BLESS").is_some() {
         std::fs::write(&committed, &generated).expect("write the reference page");

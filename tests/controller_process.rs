@@ -562,7 +562,7 @@ fn a_killed_eval_takes_the_controller_it_started_with_it() {
 fn the_readme_eval_example_runs_in_the_default_domain() {
     let _serial = one_at_a_time();
     let dir = scratch("readme-eval");
-    let repository = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let repository = support::package_dir();
     std::os::unix::fs::symlink(repository.join("models"), dir.join("models")).expect("link");
     // cargo builds the tool's binaries side by side; eval finds the controller beside itself.
     let _ = controller_binary();

@@ -3,6 +3,8 @@
 //! at margin 0 it answers exactly the graph's own commands, on both engines; with a margin
 //! it keeps its hypothesis where the graph's choice flips; a reset forgets it.
 
+mod support;
+
 use std::fs;
 use std::path::{Path, PathBuf};
 
@@ -15,7 +17,7 @@ const STEPS: usize = 48;
 
 /// A copy of the committed model with `switch_margin = margin`.
 fn with_margin(margin: f32, name: &str) -> PathBuf {
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join(MODEL);
+    let model = support::package_dir().join(MODEL);
     let directory =
         std::env::temp_dir().join(format!("dribble-commitment-{name}-{}", std::process::id()));
     fs::create_dir_all(&directory).expect("scratch directory");
@@ -95,14 +97,10 @@ fn switches(policy: &OnnxPolicy) -> u64 {
 #[test]
 fn margin_zero_is_the_graphs_choice_and_a_margin_holds_a_hypothesis() {
     let inputs = inputs();
-    let graph_manifest = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(MODEL)
-        .join("policy.toml");
+    let graph_manifest = support::package_dir().join(MODEL).join("policy.toml");
     // The graph's own choice: the modal CNN it was made from (the same weights, without
     // the hypotheses outputs; a network with outputs its manifest does not name is refused).
-    let plain = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(SOURCE)
-        .join("policy.toml");
+    let plain = support::package_dir().join(SOURCE).join("policy.toml");
     let graph = run(&mut load(&plain, Engine::Compiled), &inputs);
 
     let zero = with_margin(0.0, "zero");

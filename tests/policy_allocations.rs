@@ -39,7 +39,7 @@ fn robot_models() -> [String; 2] {
 }
 
 fn committed_models() -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy")
+    support::package_dir().join("models/policy")
 }
 
 /// A committed model's manifest for the committed ones named here, else the fixture's.

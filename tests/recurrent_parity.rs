@@ -4,6 +4,8 @@
 //! R-CNN row) runs all of its steps, state carried from the first to the last, under tract
 //! and under the engine with every instruction set this CPU runs.
 
+mod support;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -18,7 +20,7 @@ use dribble_sim::dataset::{episode_file, read_npz};
 const TOLERANCE: f32 = 2e-6;
 
 fn repository() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    support::package_dir()
 }
 
 /// The fixture R-CNN and every shipped policy of kind `rcnn`; at least one shipped.

@@ -173,7 +173,7 @@ fn ten_thousand_ticks_allocate_nothing_after_start_up() {
 #[test]
 fn ticks_with_a_real_policy_of_each_kind_allocate_nothing_on_every_instruction_set() {
     support::install_log_subscriber();
-    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let models = support::package_dir().join("models");
     // The shipped policies are part of the repository: a missing one is a failure.
     let shipped = std::fs::read_to_string(models.join("policy/HOST_MODEL")).expect("HOST_MODEL");
     let shipped = format!("policy/{}", shipped.trim());

@@ -14,6 +14,17 @@
 
 #![deny(unsafe_code)]
 
+#[cfg(test)]
+/// This package's directory: the one cargo names when it runs the test (`CARGO_MANIFEST_DIR`
+/// in the environment: the checkout under test, even when its build directory was shared with
+/// a checkout elsewhere), else the one the test was compiled in.
+pub(crate) fn package_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(
+        || env!("CARGO_MANIFEST_DIR").into(),
+        std::path::PathBuf::from,
+    )
+}
+
 pub mod camera_sync;
 pub mod clock;
 pub mod control_loop;

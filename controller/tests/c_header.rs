@@ -2,8 +2,9 @@
 //! compiler checks the header's own sizes and offsets (static assertions, for 32 and 64
 //! bit when the compiler can), and this test checks the Rust side against the same numbers.
 
+mod support;
+
 use std::mem::{offset_of, size_of};
-use std::path::Path;
 use std::process::Command;
 
 use dribble_controller::frame::{BottomFrame, FrameHeader, TopFrame, YUYV_FOURCC};
@@ -14,7 +15,7 @@ use dribble_controller::transport::ipc::{
 };
 
 fn header() -> String {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("include/dribble_messages.h");
+    let path = support::package_dir().join("include/dribble_messages.h");
     std::fs::read_to_string(path).expect("the header")
 }
 
@@ -55,7 +56,7 @@ fn the_header_states_the_rust_layouts() {
 
 /// Compiles the header with `compiler`; false if there is no such compiler here.
 fn compiles_with(compiler: &str) -> bool {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("include/dribble_messages.h");
+    let path = support::package_dir().join("include/dribble_messages.h");
     let Ok(output) = Command::new(compiler)
         .args(["-std=c11", "-Wall", "-Werror", "-fsyntax-only", "-x", "c"])
         .arg(&path)

@@ -112,7 +112,7 @@ fn policies() -> Vec<PathBuf> {
         .iter()
         .map(|kind| fixture(kind).join("policy.toml"))
         .collect();
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/policy");
+    let shipped = support::package_dir().join("../models/policy");
     let chosen = std::fs::read_to_string(shipped.join("HOST_MODEL"))
         .unwrap_or_else(|error| panic!("{}/HOST_MODEL: {error}", shipped.display()));
     for name in ["cnn", "hcnn", "rcnn", chosen.trim()] {

@@ -3,7 +3,8 @@
 //! with tract on every instruction set this CPU runs. It must neither panic nor disagree:
 //! the engine computes it as tract does, or refuses it (and tract runs it).
 
-use std::path::Path;
+mod support;
+
 
 use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::engine::oracle::{Comparison, compare};
@@ -11,7 +12,7 @@ use tract_onnx::prelude::Framework;
 
 #[test]
 fn every_graph_the_fuzzer_found_is_computed_as_tract_does_or_refused() {
-    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fuzz/regressions/engine");
+    let corpus = support::package_dir().join("../tests/fuzz/regressions/engine");
     let mut files: Vec<_> = std::fs::read_dir(&corpus)
         .unwrap_or_else(|error| panic!("{}: {error}", corpus.display()))
         .filter_map(Result::ok)

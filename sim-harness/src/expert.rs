@@ -576,10 +576,7 @@ mod tests {
         struct Fixture {
             rows: Vec<Row>,
         }
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../models/fixtures/teacher-approach.json"
-        );
+        let path = crate::package_dir().join("../models/fixtures/teacher-approach.json");
         let text = std::fs::read_to_string(path).expect("the committed fixture");
         let fixture: Fixture = serde_json::from_str(&text).expect("fixture JSON");
         assert!(fixture.rows.len() > 100);

@@ -6,6 +6,17 @@
 //! ([`top_view`], [`image_output`]). It depends on `dribble-controller`'s public types
 //! (frames, commands), never the reverse.
 
+#[cfg(test)]
+/// This package's directory: the one cargo names when it runs the test (`CARGO_MANIFEST_DIR`
+/// in the environment: the checkout under test, even when its build directory was shared with
+/// a checkout elsewhere), else the one the test was compiled in.
+pub(crate) fn package_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(
+        || env!("CARGO_MANIFEST_DIR").into(),
+        std::path::PathBuf::from,
+    )
+}
+
 pub mod ball_memory;
 pub mod camera_geometry;
 pub mod camera_model;

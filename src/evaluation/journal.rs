@@ -279,7 +279,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("dribble-hash-{}", std::process::id()));
         let _ = fs::remove_dir_all(&dir);
         fs::create_dir_all(&dir).expect("scratch");
-        let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy/cnn");
+        let shipped = crate::package_dir().join("models/policy/cnn");
         for name in ["policy.toml", "policy.onnx"] {
             fs::copy(shipped.join(name), dir.join(name)).expect("copy");
         }

@@ -9,6 +9,16 @@ use std::path::{Path, PathBuf};
 /// Installs the binaries' log subscriber (logfmt on stderr) with every level enabled, once
 /// per test process, so that an allocation test counts whatever a log event on the tick's
 /// path would cost.
+/// This package's directory: the one cargo names when it runs the test (`CARGO_MANIFEST_DIR`
+/// in the environment: the checkout under test, even when its build directory was shared with
+/// a checkout elsewhere), else the one the test was compiled in.
+pub fn package_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(
+        || env!("CARGO_MANIFEST_DIR").into(),
+        std::path::PathBuf::from,
+    )
+}
+
 pub fn install_log_subscriber() {
     static INSTALLED: std::sync::Once = std::sync::Once::new();
     INSTALLED.call_once(|| {
@@ -20,7 +30,7 @@ pub fn install_log_subscriber() {
 
 /// The manifest of a committed fixture policy (`models/fixtures/<kind>/policy.toml`).
 pub fn fixture_manifest(kind: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
+    package_dir()
         .join("models/fixtures")
         .join(kind)
         .join("policy.toml")
@@ -40,7 +50,7 @@ pub fn controller_binary() -> PathBuf {
                 .args(["build", "--quiet", "-p", "dribble-controller"])
                 .args(["--bin", "dribble-controller"])
                 .env("CARGO_TARGET_DIR", target_dir)
-                .current_dir(env!("CARGO_MANIFEST_DIR"));
+                .current_dir(package_dir());
             if profile_dir.ends_with("release") {
                 build.arg("--release");
             }

@@ -859,8 +859,7 @@ mod tests {
 
     #[test]
     fn steps_reuse_the_input_tensors_instead_of_copying_them() {
-        let manifest =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.toml");
+        let manifest = crate::package_dir().join("../models/fixtures/cnn/policy.toml");
         let options = EngineOptions {
             engine: Engine::Tract,
             isa: None,
@@ -903,8 +902,7 @@ mod tests {
         OnnxNetwork,
         tract_onnx::pb::ModelProto,
     ) {
-        let manifest =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.toml");
+        let manifest = crate::package_dir().join("../models/fixtures/cnn/policy.toml");
         let manifest = PolicyManifest::load(&manifest).expect("manifest");
         let mut names = port_names(&manifest);
         names.recurrent = None;

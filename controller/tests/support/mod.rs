@@ -3,15 +3,23 @@
 #![allow(dead_code)]
 
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 
 use dribble_controller::{BottomThumbnail, TopThumbnail};
 
+/// This package's directory: the one cargo names when it runs the test (`CARGO_MANIFEST_DIR`
+/// in the environment: the checkout under test, even when its build directory was shared with
+/// a checkout elsewhere), else the one the test was compiled in.
+pub fn package_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(
+        || env!("CARGO_MANIFEST_DIR").into(),
+        std::path::PathBuf::from,
+    )
+}
+
 pub fn fixture(kind: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../models/fixtures")
-        .join(kind)
+    package_dir().join("../models/fixtures").join(kind)
 }
 
 /// The reference steps PyTorch computed for a fixture.

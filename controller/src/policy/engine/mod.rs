@@ -352,7 +352,7 @@ mod tests {
 
     /// The CNN fixture's file and parsed model.
     fn cnn_fixture() -> (PathBuf, pb::ModelProto) {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fixtures/cnn/policy.onnx");
+        let path = crate::package_dir().join("../models/fixtures/cnn/policy.onnx");
         let bytes = std::fs::read(&path).expect("fixture");
         let proto = tract_onnx::onnx()
             .proto_model_for_read(&mut &bytes[..])
@@ -687,7 +687,7 @@ mod tests {
 
     /// `models/<folder>/<name>/policy.onnx` and its parsed model.
     fn committed_network(folder: &str, name: &str) -> (PathBuf, pb::ModelProto) {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        let path = crate::package_dir()
             .join("../models")
             .join(folder)
             .join(name)
