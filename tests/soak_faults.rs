@@ -3,14 +3,15 @@
 //! domain and its policy file replaced on disk, and answers each as documented (the
 //! summary's per-fault verdicts, checked here), with no command lost and flat memory.
 
-use std::path::Path;
+mod support;
+
 use std::process::Command;
 
 #[test]
 fn each_fault_gets_its_documented_answer() {
     let out = std::env::temp_dir().join(format!("dribble-soak-faults-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let policy = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/cnn/policy.toml");
+    let policy = support::package_dir().join("models/fixtures/cnn/policy.toml");
     let output = Command::new(env!("CARGO_BIN_EXE_dribble"))
         .args(["soak", "--faults", "--minutes", "0.6", "--warm-up-s", "5"])
         // Deadlines are for the real soak (scripts/soak); test machines are shared.
@@ -61,4 +62,25 @@ fn each_fault_gets_its_documented_answer() {
     // The policy the repository ships was never touched: the controller ran a copy.
     assert!(out.join("policy/policy.onnx").is_file());
     std::fs::remove_dir_all(out).expect("clean up");
+}
+
+#[test]
+fn an_unknown_instruction_set_is_refused_before_anything_starts() {
+    let out = std::env::temp_dir().join(format!("dribble-soak-isa-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let policy = support::package_dir().join("models/fixtures/cnn/policy.toml");
+    let output = Command::new(env!("CARGO_BIN_EXE_dribble"))
+        .args(["soak", "--minutes", "0.1", "--isa", "sse9", "--policy"])
+        .arg(&policy)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("run dribble soak");
+    let said = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{said}");
+    assert!(
+        said.contains("unknown instruction set") && said.contains("ssse3"),
+        "{said}"
+    );
+    assert!(!out.exists(), "nothing is written for a refused run");
 }

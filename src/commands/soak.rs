@@ -17,6 +17,7 @@ use std::time::Duration;
 
 use anyhow::{Context, ensure};
 use clap::Args;
+use dribble_controller::policy::engine::Isa;
 use dribble_controller::test_pattern::{PatternCameras, TestPattern};
 use dribble_controller::transport::ipc::{Domain, Iceoryx2SimulatorPorts};
 use dribble_controller::{Clock, LoopConfig, MonotonicClock, SyncConfig, Timestamp};
@@ -65,7 +66,7 @@ pub struct SoakArgs {
     /// Default: the widest this CPU runs. Recorded in soak.json with the engine the
     /// controller reports.
     #[arg(long)]
-    pub isa: Option<String>,
+    pub isa: Option<Isa>,
     /// The iceoryx2 domain. Default: one of its own, `soak-PID`.
     #[arg(long)]
     pub domain: Option<String>,
@@ -91,6 +92,14 @@ fn check_arguments(args: &SoakArgs) -> anyhow::Result<()> {
         "no policy at {}",
         args.policy.display()
     );
+    if let Some(isa) = args.isa {
+        let available: Vec<&str> = Isa::available().map(Isa::name).collect();
+        ensure!(
+            isa.is_available(),
+            "this CPU does not run {isa} (it runs {})",
+            available.join(", ")
+        );
+    }
     Ok(())
 }
 

@@ -97,8 +97,8 @@ pub(crate) fn start_controller(
     if args.priority > 0 {
         command.args(["--fifo-priority", &args.priority.to_string()]);
     }
-    if let Some(isa) = &args.isa {
-        command.args(["--isa", isa]);
+    if let Some(isa) = args.isa {
+        command.args(["--isa", isa.name()]);
     }
     command
         .spawn()

@@ -362,7 +362,7 @@ mod tests {
 
     #[test]
     fn the_replacement_is_a_policy_the_controller_would_load_and_it_answers_its_constant() {
-        let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/cnn");
+        let fixture = crate::package_dir().join("models/fixtures/cnn");
         let directory =
             std::env::temp_dir().join(format!("dribble-replacement-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&directory);

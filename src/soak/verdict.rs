@@ -10,6 +10,7 @@ use serde_json::json;
 
 use super::command_watch::{CommandWatch, Second, quantile};
 use crate::commands::soak::SoakArgs;
+use dribble_controller::policy::engine::Isa;
 use dribble_controller::run_statistics::RunStatistics;
 
 /// Every criterion the soak missed, in words (empty: it passed).
@@ -177,7 +178,7 @@ pub(crate) fn summarise(
         "faults": fault_json,
         "controller_statistics": controller_statistics,
         "policy": args.policy,
-        "isa": args.isa,
+        "isa": args.isa.map(Isa::name),
         "engine": engine_of(&controller_log),
         "minutes": args.minutes,
         "commands": totals.commands,
