@@ -61,6 +61,8 @@ impl Lowerer {
         let scratch = self.buffer(scratch_len)?;
         let fit = self.winograd;
         let mut winograd_buffers = None;
+        // Only x86-64 has the single-channel pool that sets it.
+        #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
         let mut planes_len = None;
         if let Step::Conv {
             padded,
