@@ -5,7 +5,6 @@
 
 mod support;
 
-
 use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::engine::oracle::{Comparison, compare};
 use tract_onnx::prelude::Framework;
