@@ -209,15 +209,21 @@ def selection_runs(directory: Path) -> str:
     """The closed loops on the selection seeds kept in `directory` (models/selection: one
     eval_summary JSON per model or DAgger iteration) and the models' runs under randomized
     conditions (`models/policy/<name>/select_randomized.json`, named `<name>-randomized`; a
-    run on the first N selection seeds, `selectN_<conditions>.json`, `<name>-<conditions>-N`),
-    with their intervals, failure classes and median time to goal."""
+    run on the first N selection seeds, `selectN_<conditions>.json`, `<name>-<conditions>-N`;
+    the clean run `select.json` of a model that is no row of the results table,
+    `<name>-clean`), with their intervals, failure classes and median time to goal."""
     lines = [
         "| run | seeds | goals (95 % interval) | failure classes | median time to goal | closed loop run by |",
         "|---|---|---|---|---|---|",
     ]
     runs = {path.stem: path for path in directory.glob("*.json")}
-    for path in (directory.parent / "policy").glob("*/select*_*.json"):
+    models = directory.parent / "policy"
+    for path in models.glob("*/select*_*.json"):
         runs.setdefault(f"{path.parent.name}-{selection_run_name(path.stem)}", path)
+    tabled = {path.name for name in ROWS for path in row_directories(models, name)}
+    for path in models.glob("*/select.json"):
+        if path.parent.name not in tabled:
+            runs.setdefault(f"{path.parent.name}-clean", path)
     for stem, path in sorted(runs.items()):
         summary = read(path)
         episodes = summary["episodes"]

@@ -284,3 +284,23 @@ def test_the_status_tables_tick_is_the_pipeline_models_where_no_flat_count_was_r
     assert results.tick_cell(models / "narrow-int8", "v5") == (
         "1,120,000 instructions (0.70-1.00 ms); pipeline model up to 1.00 ms"
     )
+
+
+def test_a_candidates_clean_selection_run_is_listed_when_it_has_no_row_of_its_own(tmp_path):
+    """A model outside the results table (a candidate not chosen) still shows its clean run
+    on the selection seeds, beside its runs under conditions; a tabled model's clean run is
+    in its row, not repeated."""
+    (tmp_path / "selection").mkdir()
+    runs = {("candidate", "select.json"): 44, ("candidate", "select_randomized.json"): 38, ("cnn", "select.json"): 11}
+    for (model, name), goals in runs.items():
+        path = tmp_path / "policy" / model / name
+        _selection(path, goals)
+        summary = json.loads(path.read_text())
+        for episode in summary["episodes"]:
+            episode["duration_s"] = 30.0
+        path.write_text(json.dumps(summary))
+        (path.parent / "policy.toml").write_text("")
+    table = results.selection_runs(tmp_path / "selection")
+    assert "| candidate-clean | 20000..20049 | 44 / 50" in table
+    assert "| candidate-randomized | 20000..20049 | 38 / 50" in table
+    assert "cnn-clean" not in table
