@@ -5,23 +5,42 @@
 
 mod support;
 
-use std::process::Command;
+use std::path::PathBuf;
+use std::process::{Command, Output};
 
-#[test]
-fn each_fault_gets_its_documented_answer() {
-    let out = std::env::temp_dir().join(format!("dribble-soak-faults-{}", std::process::id()));
+/// `dribble soak ARGS` on the fixture policy, into a fresh directory (returned: removed first).
+fn soak(name: &str, args: &[&str]) -> (Output, PathBuf) {
+    let out = std::env::temp_dir().join(format!("dribble-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let policy = support::package_dir().join("models/fixtures/cnn/policy.toml");
     let output = Command::new(env!("CARGO_BIN_EXE_dribble"))
-        .args(["soak", "--faults", "--minutes", "0.6", "--warm-up-s", "5"])
-        // Deadlines are for the real soak (scripts/soak); test machines are shared.
-        .args(["--max-missed-share", "0.05", "--priority", "0"])
+        .arg("soak")
+        .args(args)
         .arg("--policy")
-        .arg(&policy)
+        .arg(support::package_dir().join("models/fixtures/cnn/policy.toml"))
         .arg("--out")
         .arg(&out)
         .output()
         .expect("run dribble soak");
+    (output, out)
+}
+
+#[test]
+fn each_fault_gets_its_documented_answer() {
+    // Deadlines are for the real soak (scripts/soak); test machines are shared.
+    let (output, out) = soak(
+        "soak-faults",
+        &[
+            "--faults",
+            "--minutes",
+            "0.6",
+            "--warm-up-s",
+            "5",
+            "--max-missed-share",
+            "0.05",
+            "--priority",
+            "0",
+        ],
+    );
     let said = format!(
         "{}{}",
         String::from_utf8_lossy(&output.stdout),
@@ -66,16 +85,7 @@ fn each_fault_gets_its_documented_answer() {
 
 #[test]
 fn an_unknown_instruction_set_is_refused_before_anything_starts() {
-    let out = std::env::temp_dir().join(format!("dribble-soak-isa-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&out);
-    let policy = support::package_dir().join("models/fixtures/cnn/policy.toml");
-    let output = Command::new(env!("CARGO_BIN_EXE_dribble"))
-        .args(["soak", "--minutes", "0.1", "--isa", "sse9", "--policy"])
-        .arg(&policy)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .expect("run dribble soak");
+    let (output, out) = soak("soak-isa", &["--minutes", "0.1", "--isa", "sse9"]);
     let said = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success(), "{said}");
     assert!(
