@@ -342,7 +342,7 @@ fn eval_with_the_expert_counts_goals_and_plots() {
 #[test]
 fn eval_drives_with_a_learned_policy_through_the_rendered_cameras() {
     let plot = scratch("eval-policy").with_extension("png");
-    let manifest = support::package_dir().join("models/fixtures/cnn/policy.toml");
+    let manifest = support::fixture_manifest("cnn");
     let output = dribble(&[
         "eval",
         "--driver",

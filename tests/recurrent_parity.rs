@@ -19,14 +19,10 @@ use dribble_sim::dataset::{episode_file, read_npz};
 /// on every shipped R-CNN and instruction set; the margin is for other CPUs' rounding.
 const TOLERANCE: f32 = 2e-6;
 
-fn repository() -> PathBuf {
-    support::package_dir()
-}
-
 /// The fixture R-CNN and every shipped policy of kind `rcnn`; at least one shipped.
 fn recurrent_policies() -> Vec<PathBuf> {
-    let mut found = vec![repository().join("models/fixtures/rcnn/policy.toml")];
-    let shipped = repository().join("models/policy");
+    let mut found = vec![support::fixture_manifest("rcnn")];
+    let shipped = support::package_dir().join("models/policy");
     let mut rows: Vec<PathBuf> = std::fs::read_dir(&shipped)
         .unwrap_or_else(|error| panic!("{}: {error}", shipped.display()))
         .filter_map(Result::ok)

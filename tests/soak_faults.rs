@@ -16,7 +16,7 @@ fn soak(name: &str, args: &[&str]) -> (Output, PathBuf) {
         .arg("soak")
         .args(args)
         .arg("--policy")
-        .arg(support::package_dir().join("models/fixtures/cnn/policy.toml"))
+        .arg(support::fixture_manifest("cnn"))
         .arg("--out")
         .arg(&out)
         .output()

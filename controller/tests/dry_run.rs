@@ -47,7 +47,7 @@ fn a_nonsense_rate_is_refused() {
 
 #[test]
 fn forward_whole_tick_computes_a_command_from_each_new_pair_of_frames() {
-    let policy = support::package_dir().join("../models/fixtures/cnn/policy.toml");
+    let policy = support::fixture("cnn").join("policy.toml");
     let policy = policy.to_str().expect("the checkout's path is UTF-8");
     let run = |extra: &[&str]| {
         let output = controller_command()
@@ -108,7 +108,7 @@ fn a_reader_that_has_gone_ends_a_report_quietly() {
 
 #[test]
 fn forward_layers_lists_the_plan_and_a_single_layer_runs_alone() {
-    let policy = support::package_dir().join("../models/fixtures/cnn/policy.toml");
+    let policy = support::fixture("cnn").join("policy.toml");
     let policy = policy.to_str().expect("the checkout's path is UTF-8");
     let output = controller_command()
         .args(["--isa", "ssse3", "forward", "--steps", "2", "--layers"])

@@ -93,11 +93,13 @@ fn check_arguments(args: &SoakArgs) -> anyhow::Result<()> {
         args.policy.display()
     );
     if let Some(isa) = args.isa {
-        let available: Vec<&str> = Isa::available().map(Isa::name).collect();
         ensure!(
             isa.is_available(),
             "this CPU does not run {isa} (it runs {})",
-            available.join(", ")
+            Isa::available()
+                .map(Isa::name)
+                .collect::<Vec<_>>()
+                .join(", ")
         );
     }
     Ok(())
