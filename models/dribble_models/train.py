@@ -71,7 +71,7 @@ from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .seed_ranges import refuse_reserved
 from .export import export_policy
 from .gating import fit_centroids
-from .camera_effects import apply_camera_effects
+from .camera_effects import CameraMotion, apply_camera_effects, light_patches
 from .manifest import Lineage, ModelReference, TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
 from .one_way_detour import OneWayDetour
@@ -181,9 +181,10 @@ class CameraAugment:
     """What the simulator's camera conditions do to a thumbnail (`apply_camera_effects`:
     exposure, vignetting, a softer or moving lens, contrast, sensor noise), drawn per row and
     applied to a share of the training rows where rendering them would cost an episode. Top
-    and bottom share a row's exposure and contrast (one light, one processor); each has its
-    own noise. The other conditions (light and shadows, venues, robots) change the scene and
-    are rendered."""
+    and bottom share a row's exposure and contrast (one light, one processor) and the
+    camera's turn (the same motion, at each thumbnail's own scale); each has its own noise
+    and its own patches of light. The rest of what the light condition does (shadows cast
+    where the geometry puts them), venues and robots change the scene and are rendered."""
 
     share: float = 0.5  # of the rows, augmented
     exposure_ev: float = 1.2  # uniform in +-
@@ -192,15 +193,28 @@ class CameraAugment:
     noise: float = 0.04  # standard deviation uniform in [0, n], network units
     blur_share: float = 0.3
     effect_chance: float = 0.5  # of each effect on an augmented row
+    #: The camera's turn during the exposure (`CameraMotion`), on this share of the augmented
+    #: rows: smear up to `smear_px` and rolling-shutter skew up to `skew_px` top-thumbnail
+    #: pixels (0: none).
+    motion_share: float = 0.0
+    smear_px: float = 0.0
+    skew_px: float = 0.0
+    #: Soft shadows and bright spots (`light_patches`): each of up to three a view is there
+    #: with this chance on an augmented row (0: none).
+    patch_chance: float = 0.0
 
-    #: `--camera-augment-strength`: the ranges above, and ranges past the simulator's
-    #: severity 5 for contrast, exposure and noise, each effect on more of the rows.
-    STRENGTHS = ("standard", "strong")
+    #: `--camera-augment-strength`: the ranges above; ranges past the simulator's severity 5
+    #: for contrast, exposure and noise, each effect on more of the rows (strong); or the
+    #: standard ranges and the camera's turn (a directional smear and skew to past severity
+    #: 5's) and patches of sunlight and shadow (motion-and-light).
+    STRENGTHS = ("standard", "strong", "motion-and-light")
 
     @classmethod
     def of_strength(cls, share: float, strength: str) -> "CameraAugment":
         if strength == "strong":
             return cls(share=share, exposure_ev=1.6, contrast_low=0.25, vignetting=0.65, noise=0.06, blur_share=0.5, effect_chance=0.7)
+        if strength == "motion-and-light":
+            return cls(share=share, blur_share=0.15, motion_share=0.4, smear_px=8.0, skew_px=6.0, patch_chance=0.35)
         return cls(share=share)
 
     def __call__(self, top: torch.Tensor, bottom: torch.Tensor, generator: torch.Generator):
@@ -216,11 +230,31 @@ class CameraAugment:
         vignetting = draw(0.0, self.vignetting) * on()
         sigma = draw(0.0, self.noise) * on()
         blur = (torch.rand(n, 1, 1, 1, generator=generator) < self.blur_share).float() * chosen
+        turn = self.turn(n, chosen, generator) if self.motion_share > 0 else None
+        patch_chance = chosen * self.patch_chance
         out = []
         for images in (top, bottom):
             noise = torch.randn(images.shape, generator=generator) * sigma
-            out.append(apply_camera_effects(images, ev, contrast, vignetting, blur, noise))
+            motion, shading = None, 1.0
+            if turn is not None:
+                scale = images.shape[-1] / top.shape[-1]
+                motion = CameraMotion(turn[0] * scale, turn[1], turn[2] * scale)
+            if self.patch_chance > 0:
+                shading = light_patches(n, images.shape[-2:], generator, patch_chance)
+            out.append(apply_camera_effects(images, ev, contrast, vignetting, blur, noise, shading, motion))
         return out[0], out[1]
+
+    def turn(self, n: int, chosen: torch.Tensor, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Smear length, angle and skew (top-thumbnail pixels, radians) of the camera's turn,
+        0 on the rows without one: mostly a turn (along x, within about 0.3 rad), a nod along
+        y on a fifth of them."""
+        moving = (torch.rand(n, generator=generator) < self.motion_share).float() * chosen.view(n)
+        length = self.smear_px * torch.rand(n, generator=generator) * moving
+        nod = (torch.rand(n, generator=generator) < 0.2).float()
+        angle = 0.3 * torch.randn(n, generator=generator) + nod * torch.pi / 2
+        sign = torch.where(torch.rand(n, generator=generator) < 0.5, -1.0, 1.0)
+        skew = sign * self.skew_px * torch.rand(n, generator=generator) * moving * (1 - nod)
+        return length, angle, skew
 
 
 # ---------------------------------------------------------------------------------------
@@ -936,7 +970,11 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
         parts.append(f"K {args.clusters} (k-means on {args.kmeans_rows} sampled rows)")
     parts.append("augmented" if args.augment else "no augmentation")
     if args.camera_augment > 0:
-        strength = "" if args.camera_augment_strength == "standard" else f", {args.camera_augment_strength} ranges"
+        strength = {
+            "standard": "",
+            "strong": ", strong ranges",
+            "motion-and-light": ", the camera's turn (directional smear, rolling-shutter skew), patches of shadow and sunlight",
+        }[args.camera_augment_strength]
         parts.append(f"camera conditions augmented on {args.camera_augment:.0%} of the rows (CameraAugment: exposure, contrast, vignetting, blur, noise{strength})")
     if args.standardise_input:
         parts.append("each thumbnail standardised on its own before the network ([normalisation] standardise)")
@@ -1049,7 +1087,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--modes", type=int, default=1, help="CNN: command hypotheses with a learned choice among them (beyond the paper; 1 is the paper's CNN)")
     parser.add_argument("--augment", action="store_true", help="jitter brightness, add noise, shift images (beyond the paper)")
     parser.add_argument("--camera-augment", type=float, default=0.0, metavar="SHARE", help="apply what the simulator's camera conditions do (exposure, contrast, vignetting, blur, noise) to this share of the training rows (0: none; CameraAugment)")
-    parser.add_argument("--camera-augment-strength", choices=CameraAugment.STRENGTHS, default="standard", help="the ranges of --camera-augment: standard (up to 1.2 EV, contrast 0.4, noise 0.04) or strong (up to 1.6 EV, contrast 0.25, noise 0.06, past the simulator's severity 5, each effect on 70%% of the augmented rows)")
+    parser.add_argument("--camera-augment-strength", choices=CameraAugment.STRENGTHS, default="standard", help="the ranges of --camera-augment: standard (up to 1.2 EV, contrast 0.4, noise 0.04) strong (up to 1.6 EV, contrast 0.25, noise 0.06, past the simulator's severity 5, each effect on 70%% of the augmented rows), or motion-and-light (the standard ranges, the camera's turn as a directional smear of up to 8 and a rolling-shutter skew of up to 6 thumbnail pixels on 40%% of the augmented rows, and soft shadows and bright spots)")
     parser.add_argument("--standardise-input", action="store_true", help="the controller standardises each thumbnail on its own before the network (mean 0, spread 1, at least 4 levels: [normalisation] standardise in policy.toml), so exposure, gain and contrast change nothing the network sees (beyond the paper)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")

@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from dribble_models import dataset as ds
+from dribble_models.camera_effects import CameraMotion, light_patches
 from dribble_models.networks import RCNN, ModalCNN, RCNNStep
 from dribble_models.networks import CNN, PAPER_FILTERS, Filters
 from dribble_models.one_way_detour import OneWayDetour
@@ -494,11 +495,54 @@ def test_strong_camera_augmentation_reaches_lower_contrast_than_the_standard():
     assert lowest_spread(strong) < lowest_spread(standard)
 
 
+def test_a_camera_turn_smears_along_its_direction_and_skews_the_lower_rows():
+    image = torch.zeros(3, 1, 40, 60)
+    image[:, :, 20, 30] = 1.0  # one bright point
+    image[:, :, :, 10] = 1.0  # one bright column
+    motion = CameraMotion(torch.tensor([8.0, 8.0, 0.0]), torch.tensor([0.0, torch.pi / 2, 0.0]), torch.tensor([0.0, 0.0, 6.0]))
+    out = motion.smear(image)
+    along_x, along_y, skewed = out[0, 0], out[1, 0], out[2, 0]
+    # A turn spreads the point along its row only; a nod along its column only.
+    assert along_x[20, 26:35].min() > 0.05 and along_x[19, 25:36].abs().max() < 1e-6
+    assert along_y[16:25, 30].min() > 0.05 and along_y[16:25, 29].abs().max() < 1e-6
+    # The column, sharp under the skew, leans: its top row moves 3 pixels one way, its bottom 3 the other.
+    assert int(skewed[0].argmax()) == 13 and int(skewed[-1].argmax()) == 7 and int(skewed[20].argmax()) == 10
+    assert torch.equal(CameraMotion(torch.zeros(3), torch.zeros(3), torch.zeros(3)).smear(image), image)
+
+
+def test_light_patches_darken_and_brighten_within_their_ranges_and_leave_other_rows_alone():
+    generator = torch.Generator().manual_seed(11)
+    chance = torch.tensor([1.0] * 63 + [0.0]).view(64, 1, 1, 1)
+    gains = light_patches(64, (60, 80), generator, chance)
+    assert gains.shape == (64, 1, 60, 80)
+    assert float(gains[:63].min()) < 0.6 and float(gains[:63].max()) > 1.5
+    assert float(gains.min()) >= 0.4**3 - 1e-6 and float(gains.max()) <= 1.9**3 + 1e-6
+    assert torch.equal(gains[63], torch.ones(1, 60, 80))
+
+
+def test_motion_and_light_augmentation_follows_the_seed_and_moves_both_cameras_alike():
+    generator = torch.Generator().manual_seed(3)
+    top, bottom = torch.rand(64, 1, 120, 160, generator=generator), torch.rand(64, 1, 60, 80, generator=generator)
+    augment = CameraAugment.of_strength(0.5, "motion-and-light")
+    first = augment(top, bottom, torch.Generator().manual_seed(7))
+    again = augment(top, bottom, torch.Generator().manual_seed(7))
+    assert all(torch.equal(a, b) for a, b in zip(first, again))
+    for augmented in first:
+        assert augmented.min() >= 0.0 and augmented.max() <= 1.0
+    length, _, skew = augment.turn(1000, torch.ones(1000, 1, 1, 1), torch.Generator().manual_seed(1))
+    moving = length > 0
+    assert 300 < int(moving.sum()) < 500 and float(length.max()) <= 8.0 and float(skew.abs().max()) <= 6.0
+    standard = CameraAugment.of_strength(0.5, "standard")
+    assert standard.motion_share == 0.0 and standard.patch_chance == 0.0
+
+
 def test_camera_augmentation_is_named_in_the_notes():
     args = parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "0.5"])
     assert "camera conditions augmented on 50% of the rows" in notes_of(args, torch.device("cpu"))
     strong = parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "0.5", "--camera-augment-strength", "strong"])
     assert "noise, strong ranges)" in notes_of(strong)
+    moving = parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "0.5", "--camera-augment-strength", "motion-and-light"])
+    assert "the camera's turn (directional smear, rolling-shutter skew), patches of shadow and sunlight" in notes_of(moving)
     with pytest.raises(SystemExit):
         parse_args(["--kind", "cnn", "--dataset", "d", "--out", "o", "--camera-augment", "2"])
 
