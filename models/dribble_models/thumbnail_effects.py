@@ -12,8 +12,9 @@ thumbnails (the simulator renders them at the cameras' resolution before YUYV pa
 the error is the teacher's label against the policy's command on the teacher's own states,
 not what happens when the policy drives. Only point effects are close to the rendered ones
 (contrast and exposure act on each pixel; sensor noise averaged over a thumbnail pixel's 4x4
-camera pixels has a quarter of its spread; the lens and motion blur are approximated by a 3x3
-box at the thumbnail's scale). Rows must come from training or validation seeds, never from
+camera pixels has a quarter of its spread; the lens is approximated by a 3x3 box at the
+thumbnail's scale, the camera's turn by a horizontal smear and rolling-shutter skew of the
+pixels the simulator's motion blur moves the image by, `CameraMotion`). Rows must come from training or validation seeds, never from
 selection, test or fresh seeds (`seed_ranges.refuse_reserved`): the numbers here inform
 choices.
 """
@@ -30,9 +31,12 @@ import numpy as np
 import torch
 
 from . import dataset, seed_ranges
-from .camera_effects import apply_camera_effects
+from .camera_effects import CameraMotion, apply_camera_effects
+from .contract import TOP_SHAPE
 from .gym_equivalence import OnnxPolicy
 from .train import row_errors
+
+TOP_WIDTH = TOP_SHAPE[1]
 
 @dataclass(frozen=True)
 class ThumbnailEffect:
@@ -44,13 +48,21 @@ class ThumbnailEffect:
     noise: float = 0.0  # standard deviation at the thumbnail's scale, display units
     blur: bool = False
     vignetting: float = 0.0
+    #: A turn during the exposure, in top-thumbnail pixels (the bottom camera's thumbnail,
+    #: half as wide, moves half as far): smear along x and rolling-shutter skew.
+    smear_px: float = 0.0
+    skew_px: float = 0.0
 
     def apply(self, thumbnails: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """u8 [N, H, W] -> u8 [N, H, W], as `apply_camera_effects` changes them (the noise
         drawn from `rng`)."""
         display = torch.from_numpy(thumbnails.astype(np.float32) / 255.0)[:, None]
         noise = torch.from_numpy(rng.normal(0.0, self.noise, display.shape).astype(np.float32)) if self.noise else 0.0
-        shown = apply_camera_effects(display, self.exposure_ev, self.contrast, self.vignetting, float(self.blur), noise)
+        motion = None
+        if self.smear_px or self.skew_px:
+            n, scale = display.shape[0], display.shape[-1] / TOP_WIDTH
+            motion = CameraMotion(torch.full((n,), self.smear_px * scale), torch.zeros(n), torch.full((n,), self.skew_px * scale))
+        shown = apply_camera_effects(display, self.exposure_ev, self.contrast, self.vignetting, float(self.blur), noise, motion=motion)
         return np.clip(np.rint(shown[:, 0].numpy() * 255.0), 0, 255).astype(np.uint8)
 
 
@@ -66,6 +78,8 @@ SEVERITY_3 = (
     ThumbnailEffect("noise:5 (45/255 raw)", noise=45.0 / 255.0 / 4.0),
     ThumbnailEffect("blur (3x3)", blur=True),
     ThumbnailEffect("lens:3 (vignetting 0.35, blur)", vignetting=0.35, blur=True),
+    ThumbnailEffect("turn:3 (4 px smear, 4 px skew)", smear_px=4.0, skew_px=4.0),
+    ThumbnailEffect("turn:5 (7 px smear, 5 px skew)", smear_px=7.0, skew_px=5.0),
 )
 
 

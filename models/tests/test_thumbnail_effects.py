@@ -21,6 +21,10 @@ def test_each_effect_changes_a_thumbnail_as_its_condition_does():
     assert 4.0 < noisy.std() < 6.0 and abs(noisy.mean()) < 0.2
     blurred = same(ThumbnailEffect("b", blur=True)).astype(float)
     assert blurred.std() < frames.std() / 2
+    turned = same(ThumbnailEffect("t", smear_px=4.0)).astype(float)
+    # A turn smears along the rows: neighbours in a row share most of what they average,
+    # neighbours in a column none of it.
+    assert np.abs(np.diff(turned, axis=2)).mean() < np.abs(np.diff(turned, axis=1)).mean() / 2
     # The same seed, the same noise.
     assert np.array_equal(same(ThumbnailEffect("n", noise=0.02)), same(ThumbnailEffect("n", noise=0.02)))
     assert [e.name for e in SEVERITY_3][0] == "clean"
