@@ -13,7 +13,6 @@
 //! figures print together.
 
 use std::hint::black_box;
-use std::path::Path;
 use std::process::Command;
 
 use criterion::Criterion;
@@ -28,15 +27,14 @@ use dribble_controller::{
     BottomFrame, BottomThumbnail, Policy, PolicyInput, Timestamp, TopFrame, TopThumbnail,
 };
 
+mod support;
+
 /// Set in the second run, which measures tract with SSE only.
 const SSE_ONLY_RUN: &str = "DRIBBLE_BENCH_TRACT_SSE_ONLY";
 const TRACT_SSE_ONLY: &str = "-avx,-avx2,-fma,-f16c,-avx512f";
 
 fn load(kind: &str, engine: Engine, isa: Option<Isa>) -> OnnxPolicy {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("models/fixtures")
-        .join(kind)
-        .join("policy.toml");
+    let manifest = support::fixture_manifest(kind);
     let policy = OnnxPolicy::load_with(&manifest, EngineOptions { engine, isa })
         .unwrap_or_else(|error| panic!("{error}"))
         .0;

@@ -4,7 +4,6 @@
 //! repeats).
 
 use std::hint::black_box;
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -16,9 +15,11 @@ use dribble_controller::{
     TopFrame,
 };
 
+mod support;
+
 /// The CNN fixture on `engine`, the compiled one on `isa` (`None`: the best this CPU runs).
 fn cnn(engine: Engine, isa: Option<Isa>) -> OnnxPolicy {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/cnn/policy.toml");
+    let manifest = support::fixture_manifest("cnn");
     OnnxPolicy::load_with(&manifest, EngineOptions { engine, isa })
         .unwrap_or_else(|error| panic!("{error}"))
         .0
