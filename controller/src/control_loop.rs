@@ -155,7 +155,13 @@ impl<P: Policy, C: Clock> ControlLoop<P, C> {
         let last = self.last_command;
         self.counters.stops += 1;
         self.counters.camera_stops += 1;
-        self.stop(now, last.top_sequence, last.bottom_sequence)
+        self.command(
+            now,
+            last.top_sequence,
+            last.bottom_sequence,
+            SpeedCommand::STOP,
+            CommandFlags::STOP.union(CommandFlags::WATCHDOG),
+        )
     }
 
     /// Waits for the next tick's deadline. Deadlines are a fixed grid from the first call;

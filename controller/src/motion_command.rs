@@ -18,6 +18,10 @@ impl CommandFlags {
     pub const NEW: Self = Self(1);
     pub const REPEATED: Self = Self(1 << 1);
     pub const STOP: Self = Self(1 << 2);
+    /// A stop published while no lock-step tick came (the simulator silent, or not started):
+    /// it answers no tick, even one stamped with the same time (the first tick of a run and a
+    /// stop before it are both at time zero).
+    pub const WATCHDOG: Self = Self(1 << 3);
 
     pub const fn contains(self, other: Self) -> bool {
         self.0 & other.0 == other.0
@@ -75,6 +79,10 @@ impl MotionCommand {
 
     pub const fn is_stop(&self) -> bool {
         self.flags.contains(CommandFlags::STOP)
+    }
+
+    pub const fn is_watchdog(&self) -> bool {
+        self.flags.contains(CommandFlags::WATCHDOG)
     }
 
     /// The command with its speed checked as [`SpeedCommand::new`] checks it: read from

@@ -10,9 +10,12 @@ use std::time::{Duration, Instant};
 use dribble_controller::policy::BrightnessPolicy;
 use dribble_controller::transport::channel::channel_transport;
 use dribble_controller::transport::ipc::{Domain, Iceoryx2ControllerPorts, Iceoryx2SimulatorPorts};
-use dribble_controller::transport::{ControllerNode, LockStepTick, SimulatorPorts, TransportError};
+use dribble_controller::transport::{
+    ControllerNode, ControllerPorts, LockStepTick, SimulatorPorts, TransportError,
+};
 use dribble_controller::{
-    BottomFrame, ControlLoop, LoopConfig, ManualClock, MotionCommand, Timestamp, TopFrame,
+    BottomFrame, CommandFlags, ControlLoop, LoopConfig, ManualClock, MotionCommand, Timestamp,
+    TopFrame,
 };
 
 const ANSWER: Duration = Duration::from_secs(5);
@@ -194,6 +197,43 @@ fn over_channels(scenario: fn(&mut dyn SimulatorPorts)) -> u64 {
     let controller = spawn_controller(move || controller_ports);
     scenario(&mut sim);
     controller.stop()
+}
+
+/// Before a run's first tick the controller's clock reads zero, and so does that tick's time:
+/// a stop published in the silence before it (the simulator still starting, slower than the
+/// silence limit on a busy machine) must not pass for its answer, however the two cross.
+/// (It did: a run's first command was now and then that stop, and an episode played in one
+/// job ended otherwise than the same episode in two.)
+#[test]
+fn a_stop_from_the_silence_before_the_first_tick_answers_nothing() {
+    let (mut controller, mut sim) = channel_transport();
+    let mut control = ControlLoop::new(
+        LoopConfig::default(),
+        BrightnessPolicy::default(),
+        ManualClock::default(),
+    );
+    let first = LockStepTick {
+        episode: 1,
+        index: 0,
+        time_ns: 0,
+    };
+    sim.publish_tick(&first).expect("tick");
+    let stale = control.watchdog_stop();
+    assert!(stale.is_stop() && stale.is_watchdog(), "{stale:?}");
+    assert_eq!(stale.timestamp_ns, first.time_ns);
+    controller.publish(&stale).expect("watchdog stop");
+    let quiet = sim
+        .answer(&first, Duration::from_millis(10))
+        .expect("answer");
+    assert_eq!(quiet, None, "a watchdog stop answered the tick");
+    let own = MotionCommand {
+        sequence: stale.sequence + 1,
+        flags: CommandFlags::STOP,
+        ..stale
+    };
+    controller.publish(&own).expect("the tick's own answer");
+    let answer = sim.answer(&first, ANSWER).expect("answer");
+    assert_eq!(answer, Some(own));
 }
 
 #[test]

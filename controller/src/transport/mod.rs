@@ -96,8 +96,9 @@ pub trait SimulatorPorts {
     fn next_command(&mut self, timeout: Duration) -> Result<Option<MotionCommand>, TransportError>;
 
     /// The command answering `tick`, waiting at most `timeout` for it. The answer is the
-    /// command stamped with the tick's time; any other (a stop from a silent spell) answers
-    /// nothing and is passed over.
+    /// command stamped with the tick's time; any other, and a stop from a silent spell
+    /// ([`CommandFlags::WATCHDOG`](crate::CommandFlags): one published before a run's first
+    /// tick is stamped zero, as that tick is), answers nothing and is passed over.
     fn answer(
         &mut self,
         tick: &LockStepTick,
@@ -107,7 +108,9 @@ pub trait SimulatorPorts {
         loop {
             let left = deadline.saturating_duration_since(std::time::Instant::now());
             match self.next_command(left)? {
-                Some(command) if command.timestamp_ns == tick.time_ns => return Ok(Some(command)),
+                Some(command) if command.timestamp_ns == tick.time_ns && !command.is_watchdog() => {
+                    return Ok(Some(command));
+                }
                 Some(_) => {}
                 None => return Ok(None),
             }
