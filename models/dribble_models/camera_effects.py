@@ -56,9 +56,9 @@ class CameraMotion:
     `skew_px` along x from the top one. Each a [N] tensor, one value a row (0: still).
 
     The simulator's motion-blur condition at severity 3 (a 30 ms exposure and 30 ms readout
-    while turning at 1 rad/s, focal length about 560 camera pixels) moves the top camera's
-    image about 17 camera pixels, 4 thumbnail pixels, during the exposure and skews it about
-    as much during the readout; severity 5 (50 ms) about 7."""
+    while turning at 1 rad/s; a focal length of about 540 camera pixels, 61 degrees over 640)
+    moves the top camera's image about 16 camera pixels, 4 thumbnail pixels, during the
+    exposure and skews it about as much during the readout; severity 5 (50 ms) about 7."""
 
     length_px: torch.Tensor
     angle: torch.Tensor
