@@ -67,27 +67,29 @@ class CameraMotion:
 
     def smear(self, image: torch.Tensor) -> torch.Tensor:
         """[N, 1, H, W] linear light -> the same averaged along each row's motion (borders
-        repeated), `samples` points along the line."""
+        repeated), `samples` points along the line; still rows are left as they are."""
         moving = (self.length_px != 0) | (self.skew_px != 0)
         if not bool(moving.any()):
             return image
         out = image.clone()
-        out[moving] = CameraMotion(self.length_px[moving], self.angle[moving], self.skew_px[moving], self.samples).smear_all(image[moving])
+        out[moving] = _smear(image[moving], self.length_px[moving], self.angle[moving], self.skew_px[moving], self.samples)
         return out
 
-    def smear_all(self, image: torch.Tensor) -> torch.Tensor:
-        n, _, h, w = image.shape
-        gy, gx = torch.meshgrid(torch.linspace(-1, 1, h), torch.linspace(-1, 1, w), indexing="ij")
-        # Thumbnail pixels -> grid_sample's [-1, 1] units (align_corners: the outer pixels' centres).
-        to_x, to_y = 2.0 / max(w - 1, 1), 2.0 / max(h - 1, 1)
-        dx = (self.length_px * torch.cos(self.angle) * to_x).view(n, 1, 1)
-        dy = (self.length_px * torch.sin(self.angle) * to_y).view(n, 1, 1)
-        skew = self.skew_px.view(n, 1, 1) * (gy / 2) * to_x
-        total = torch.zeros_like(image)
-        for s in torch.linspace(-0.5, 0.5, self.samples):
-            grid = torch.stack((gx + skew + s * dx, (gy + s * dy).expand(n, h, w)), dim=-1)
-            total += nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
-        return total / self.samples
+
+def _smear(image: torch.Tensor, length_px: torch.Tensor, angle: torch.Tensor, skew_px: torch.Tensor, samples: int) -> torch.Tensor:
+    """`CameraMotion.smear` on every row of `image`."""
+    n, _, h, w = image.shape
+    gy, gx = torch.meshgrid(torch.linspace(-1, 1, h), torch.linspace(-1, 1, w), indexing="ij")
+    # Thumbnail pixels -> grid_sample's [-1, 1] units (align_corners: the outer pixels' centres).
+    to_x, to_y = 2.0 / max(w - 1, 1), 2.0 / max(h - 1, 1)
+    dx = (length_px * torch.cos(angle) * to_x).view(n, 1, 1)
+    dy = (length_px * torch.sin(angle) * to_y).view(n, 1, 1)
+    skew = skew_px.view(n, 1, 1) * (gy / 2) * to_x
+    total = torch.zeros_like(image)
+    for s in torch.linspace(-0.5, 0.5, samples):
+        grid = torch.stack((gx + skew + s * dx, (gy + s * dy).expand(n, h, w)), dim=-1)
+        total += nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    return total / samples
 
 
 def light_patches(
@@ -119,8 +121,9 @@ def light_patches(
     factor = shadow * (1 - draw(*shadow_share)) + (1 - shadow) * (1 + draw(*spot_gain))
     y = torch.linspace(-1, 1, h).view(1, 1, h, 1)
     x = torch.linspace(-1, 1, w).view(1, 1, 1, w) * (w / h)  # square pixels
-    u = (x - cx * (w / h)) * torch.cos(turn) + (y - cy) * torch.sin(turn)
-    v = -(x - cx * (w / h)) * torch.sin(turn) + (y - cy) * torch.cos(turn)
+    off_x, off_y = x - cx * (w / h), y - cy
+    u = off_x * torch.cos(turn) + off_y * torch.sin(turn)
+    v = -off_x * torch.sin(turn) + off_y * torch.cos(turn)
     radius = torch.sqrt((u / along) ** 2 + (v / across) ** 2)
     inside = torch.sigmoid((1 - radius) / soft)
     return torch.prod(1 + (factor - 1) * inside * on, dim=1, keepdim=True)

@@ -14,9 +14,9 @@ not what happens when the policy drives. Only point effects are close to the ren
 (contrast and exposure act on each pixel; sensor noise averaged over a thumbnail pixel's 4x4
 camera pixels has a quarter of its spread; the lens is approximated by a 3x3 box at the
 thumbnail's scale, the camera's turn by a horizontal smear and rolling-shutter skew of the
-pixels the simulator's motion blur moves the image by, `CameraMotion`). Rows must come from training or validation seeds, never from
-selection, test or fresh seeds (`seed_ranges.refuse_reserved`): the numbers here inform
-choices.
+pixels the simulator's motion blur moves the image by, `CameraMotion`). Rows must come from
+training or validation seeds, never from selection, test or fresh seeds
+(`seed_ranges.refuse_reserved`): the numbers here inform choices.
 """
 
 from __future__ import annotations
