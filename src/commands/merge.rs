@@ -5,8 +5,8 @@
 //! --trajectories`'s, with its table, goal count and plot.
 //!
 //! The shares must agree on everything but their seeds (simulator, cameras, teacher, driver;
-//! the engine for an evaluation) and must not share a seed; every episode file is checked
-//! against the hash its share recorded before it is copied.
+//! the engine and the conditions for an evaluation) and must not share a seed; every episode
+//! file is checked against the hash its share recorded before it is copied.
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -176,6 +176,18 @@ fn merge_trajectories(
         engines.len() == 1,
         "the shares ran different engines: {engines:?}"
     );
+    // One run's conditions (a randomized run's draws differ by seed, its name does not).
+    let mut conditions: Vec<String> = results
+        .iter()
+        .map(|r| r.setup.conditions.to_string())
+        .collect();
+    conditions.sort();
+    conditions.dedup();
+    ensure!(
+        conditions.len() <= 1,
+        "the shares ran under different conditions: {}",
+        conditions.join(", ")
+    );
     results.sort_by_key(|r| r.setup.seed);
     let engine = engines.pop().flatten();
     write_trajectories(&results, engine.as_deref(), out)?;
@@ -201,4 +213,49 @@ fn merge_trajectories(
     }
     println!("trajectories: {}", out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A one-episode trajectories file of `seed` under `conditions` (absent: clean).
+    fn share(dir: &Path, seed: u64, conditions: Option<&str>) -> PathBuf {
+        let path = dir.join(format!("share-{seed}.json"));
+        let mut file = serde_json::json!({"engine": "compiled (avx2+fma)", "episodes": [{
+            "seed": seed, "outcome": "goal", "duration_s": 30.0, "computed_commands": 900,
+            "failure": null, "robot": [[0.0, 0.0]], "ball": [[1.0, 0.0]]}]});
+        if let Some(conditions) = conditions {
+            // As `dribble eval` writes them: the run's, and each episode's.
+            file["conditions"] = conditions.into();
+            file["episodes"][0]["conditions"] = conditions.into();
+        }
+        fs::write(&path, file.to_string()).expect("written");
+        path
+    }
+
+    #[test]
+    fn shares_under_different_conditions_are_not_merged() {
+        let dir = std::env::temp_dir().join(format!("dribble-merge-{}", std::process::id()));
+        fs::create_dir_all(&dir).expect("dir");
+        let out = dir.join("merged.json");
+        let light = share(&dir, 30_000, Some("light:3"));
+        let blur = share(&dir, 30_020, Some("motion-blur:3"));
+        let error = merge_trajectories(&out, None, "expert", &[light.clone(), blur])
+            .expect_err("different conditions");
+        assert!(
+            format!("{error:#}").contains("different conditions"),
+            "{error:#}"
+        );
+        assert!(!out.exists());
+        let clean = share(&dir, 30_040, None);
+        assert!(merge_trajectories(&out, None, "expert", &[light.clone(), clean]).is_err());
+        let more_light = share(&dir, 30_060, Some("light:3"));
+        merge_trajectories(&out, None, "expert", &[light, more_light]).expect("one run's shares");
+        let merged: serde_json::Value =
+            serde_json::from_str(&fs::read_to_string(&out).expect("read")).expect("json");
+        assert_eq!(merged["conditions"], "light:3");
+        assert_eq!(merged["episodes"].as_array().map(Vec::len), Some(2));
+        let _ = fs::remove_dir_all(&dir);
+    }
 }
