@@ -104,9 +104,12 @@ fn one_carried_step(network: &Path) -> f32 {
 
 /// Every policy the tests compare: the fixtures and every model `models/policy` ships. The
 /// paper's three rows and the one `HOST_MODEL` names must be there: a missing one fails.
-/// The fixtures and every committed model; with `DRIBBLE_PARITY_ROWS=shipped` (the emulated
-/// V5 run, `cross/test`), the fixtures, the paper's three rows and the two models that ship
-/// (`HOST_MODEL`, `ROBOT_MODEL`): the other rows run the same kernels, checked on the host.
+/// The fixtures and every committed model; with `DRIBBLE_PARITY_ROWS=robot` (the emulated
+/// Atoms, `cross/test`), the fixtures and the model the robot package ships (`ROBOT_MODEL`):
+/// the fixtures hold one network of each kind the engine lowers (float, int8, hierarchical,
+/// recurrent), so every kernel runs on the robot's instruction sets; the wider rows run the
+/// same kernels longer, at emulated speed (four fifths of the V5 stage's test time), and are
+/// checked on the host.
 fn policies() -> Vec<PathBuf> {
     let mut found: Vec<PathBuf> = ["cnn", "cnn-int8", "hcnn", "rcnn"]
         .iter()
@@ -119,15 +122,18 @@ fn policies() -> Vec<PathBuf> {
         let manifest = shipped.join(name).join("policy.toml");
         assert!(manifest.is_file(), "{} is missing", manifest.display());
     }
-    let only_shipped = std::env::var("DRIBBLE_PARITY_ROWS").is_ok_and(|rows| rows == "shipped");
+    let only_robot = match std::env::var("DRIBBLE_PARITY_ROWS") {
+        Ok(rows) if rows == "robot" => true,
+        Ok(rows) => panic!("DRIBBLE_PARITY_ROWS={rows}: `robot` or unset (every row)"),
+        Err(_) => false,
+    };
     let robot = std::fs::read_to_string(shipped.join("ROBOT_MODEL"))
         .unwrap_or_else(|error| panic!("{}/ROBOT_MODEL: {error}", shipped.display()));
-    let kept = ["cnn", "hcnn", "rcnn", chosen.trim(), robot.trim()];
     let mut rows: Vec<PathBuf> = std::fs::read_dir(&shipped)
         .unwrap_or_else(|error| panic!("{}: {error}", shipped.display()))
         .filter_map(Result::ok)
         .filter(|entry| entry.path().is_dir())
-        .filter(|entry| !only_shipped || kept.iter().any(|name| entry.file_name() == *name))
+        .filter(|entry| !only_robot || entry.file_name() == robot.trim())
         .map(|entry| entry.path().join("policy.toml"))
         .collect();
     rows.sort();
@@ -181,36 +187,38 @@ impl Difference {
     }
 }
 
-/// How two policies differ over the same steps (an episode, then a reset and a second one,
-/// so a recurrent state is carried and cleared).
-fn difference(
-    a: &mut OnnxPolicy,
-    b: &mut OnnxPolicy,
+/// A policy's commands (forward, left, turn) over the same steps: an episode, then a reset and
+/// a second one, so a recurrent state is carried and cleared.
+fn commands(
+    policy: &mut OnnxPolicy,
     steps: &[(Box<TopThumbnail>, Box<BottomThumbnail>)],
-) -> Difference {
+) -> Vec<[f32; 3]> {
+    let mut found = Vec::with_capacity(2 * steps.len());
+    for episode in 0..2 {
+        policy.reset();
+        for (step, (top, bottom)) in steps.iter().enumerate() {
+            let output = policy
+                .step(PolicyInput { top, bottom })
+                .unwrap_or_else(|e| panic!("episode {episode} step {step}: {e}"));
+            found.push([output.forward, output.left, output.turn]);
+        }
+    }
+    found
+}
+
+/// How two runs' commands differ, component by component.
+fn difference(a: &[[f32; 3]], b: &[[f32; 3]]) -> Difference {
+    assert_eq!(a.len(), b.len());
     let mut found = Difference {
         worst: 0.0,
         differing: 0,
         compared: 0,
     };
-    for episode in 0..2 {
-        a.reset();
-        b.reset();
-        for (step, (top, bottom)) in steps.iter().enumerate() {
-            let input = PolicyInput { top, bottom };
-            let x = a
-                .step(input)
-                .unwrap_or_else(|e| panic!("episode {episode} step {step}: {e}"));
-            let y = b
-                .step(input)
-                .unwrap_or_else(|e| panic!("episode {episode} step {step}: {e}"));
-            for (u, v) in [(x.forward, y.forward), (x.left, y.left), (x.turn, y.turn)] {
-                assert!(u.is_finite() && v.is_finite());
-                found.worst = found.worst.max((u - v).abs());
-                found.differing += usize::from((u - v).abs() > TOLERANCE);
-                found.compared += 1;
-            }
-        }
+    for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+        assert!(x.is_finite() && y.is_finite());
+        found.worst = found.worst.max((x - y).abs());
+        found.differing += usize::from((x - y).abs() > TOLERANCE);
+        found.compared += 1;
     }
     found
 }
@@ -220,8 +228,10 @@ fn the_engine_matches_tract_on_every_model_and_instruction_set() {
     let steps = thumbnails(7, 60);
     let mut checked = 0;
     for path in policies() {
+        // tract's commands once per model (under emulation tract is most of the time).
         let mut tract = load(&path, Engine::Tract, None);
         assert_eq!(tract.engine().compiled, None);
+        let reference = commands(&mut tract, &steps);
         for isa in Isa::available() {
             let mut compiled = load(&path, Engine::Compiled, Some(isa));
             assert_eq!(
@@ -231,7 +241,7 @@ fn the_engine_matches_tract_on_every_model_and_instruction_set() {
                 path.display(),
                 compiled.engine()
             );
-            let found = difference(&mut compiled, &mut tract, &steps);
+            let found = difference(&commands(&mut compiled, &steps), &reference);
             let manifest = PolicyManifest::load(&path).expect("a manifest");
             let recurrent = manifest.recurrent.is_some();
             // An int8 manifest runs on the integer kernels, not on its float reading.

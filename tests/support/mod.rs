@@ -38,6 +38,13 @@ pub fn fixture_manifest(kind: &str) -> PathBuf {
 
 /// The `dribble-controller` binary of this build, built first if needed (cargo builds only
 /// the tested package's binaries for its tests).
+///
+/// It is built as `cargo test --workspace --all-targets` (the suite, `scripts/test`) builds
+/// it: the whole workspace and one of the controller's test targets, so that cargo resolves
+/// the dependencies' features with the dev-dependencies in, as the suite does. Under the
+/// suite the binary is then already fresh; `-p dribble-controller` alone would resolve other
+/// features and build the controller and a third of its dependencies again (6.5 minutes of a
+/// cold suite), and overwrite the binary the other stages run.
 pub fn controller_binary() -> PathBuf {
     static BUILT: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     BUILT
@@ -47,8 +54,8 @@ pub fn controller_binary() -> PathBuf {
             let target_dir = profile_dir.parent().expect("a target directory");
             let mut build = std::process::Command::new(env!("CARGO"));
             build
-                .args(["build", "--quiet", "-p", "dribble-controller"])
-                .args(["--bin", "dribble-controller"])
+                .args(["build", "--quiet", "--workspace"])
+                .args(["--bin", "dribble-controller", "--test", "transport"])
                 .env("CARGO_TARGET_DIR", target_dir)
                 .current_dir(package_dir());
             if profile_dir.ends_with("release") {
