@@ -20,7 +20,9 @@ each network and instruction set, the int8 twins on ours, the medians of `--step
 the instructions of one pass under callgrind (`--steps 11` minus `--steps 1`, over ten, as
 `cross/count` counts), and whether CompiledNN's command equals onnxruntime's on real-looking
 inputs (the check that the exported file is the same network; dribble's engine is held to
-tract by its own parity tests). The machine must be built with `scripts/setup --compiled-nn`.
+tract by its own parity tests); and onnxruntime's step on each network and int8 twin
+(`ort_bench`, one thread), which picks its kernels from the CPU and so stands beside our
+widest set. The machine must be built with `scripts/setup --compiled-nn`.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import os
 import pathlib
 import platform
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -288,6 +291,19 @@ def _per_pass(command: list[str]) -> int:
     return round((_instructions([*command, "--steps", "11"]) - _instructions([*command, "--steps", "1"])) / 10)
 
 
+def _onnxruntime_us(policy: pathlib.Path, repeats: int, steps: int) -> float:
+    """onnxruntime's median step of the policy's network (`ort_bench`: one thread, random
+    thumbnails), the best of `repeats` runs. It picks its kernels from the CPU: its figure
+    stands beside our widest instruction set."""
+    from . import ort_bench
+
+    networks = policy_manifest.load(policy / "policy.toml").get("networks", [])
+    if len(networks) != 1:
+        raise SystemExit(f"compiled_nn: {policy}: {len(networks)} networks; only one-network policies compare")
+    session = ort_bench.session(policy / networks[0])
+    return min(statistics.median(ort_bench.time_steps(session, steps, seed)) for seed in range(repeats))
+
+
 def _commands_agree(policy: pathlib.Path, h5: pathlib.Path, isa: str, cases: int = 8) -> dict:
     """CompiledNN's output against onnxruntime's on `cases` inputs (thumbnails with smooth
     structure and noise, made the network's input as the manifest's normalisation says)."""
@@ -349,7 +365,9 @@ def compare(args) -> dict:
                     entry["dribble_instructions"] = _per_pass(
                         [str(_controller()), "forward", "--policy", str(policy / "policy.toml"), "--isa", isa, "--no-peak"])
                 row["engines"].append(entry)
+            row["onnxruntime"] = {"float_us": _onnxruntime_us(policy, args.repeats, args.steps)}
             if int8 and (ROOT / int8 / "policy.toml").exists():
+                row["onnxruntime"]["int8_us"] = _onnxruntime_us(ROOT / int8, args.repeats, args.steps)
                 for isa in ("ssse3", "avx2+fma"):
                     best = min(_ours_us(ROOT / int8, isa, args.steps) for _ in range(args.repeats))
                     entry = {"isa": isa, "int8": True, "dribble_us": best}
@@ -360,8 +378,11 @@ def compare(args) -> dict:
                     row["engines"].append(entry)
                 row["int8_policy"] = int8
             rows.append(row)
+    import onnxruntime as ort
+
     return {
         "compiled_nn": "compiled-nn-bindings 0.12.0 (B-Human CompiledNN, Keras HDF5 front end)",
+        "onnxruntime": f"onnxruntime {ort.__version__} (its kernels for this CPU, one thread; int8 as QDQ)",
         "cpu": _cpu_name(),
         "steps": args.steps,
         "threads": 1,

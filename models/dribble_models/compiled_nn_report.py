@@ -12,6 +12,8 @@ from pathlib import Path
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 RESULT = REPOSITORY / "models" / "performance" / "compiled-nn.json"
+# The instruction sets the comparison measures, narrowest first (`compiled_nn.ISAS`).
+ISAS_BY_WIDTH = ("ssse3", "sse4.2", "avx2+fma")
 
 
 def _us(value: float | None) -> str:
@@ -20,6 +22,13 @@ def _us(value: float | None) -> str:
 
 def _count(value: int | None) -> str:
     return "-" if value is None else f"{value:,}"
+
+
+def _network(row: dict) -> str:
+    """The row's role and the model directory measured: the shipped models change, the role
+    stays (`models/fixtures/cnn` is named by its role alone)."""
+    policy = row.get("policy", "models/fixtures/")
+    return row["network"] if policy.startswith("models/fixtures/") else f"{row['network']} (`{Path(policy).name}`)"
 
 
 def table(result: dict) -> list[str]:
@@ -39,7 +48,7 @@ def table(result: dict) -> list[str]:
                 f"{'yes' if agreement['equal'] else 'NO'} (max difference {agreement['max_abs_difference']:.1e}, "
                 f"{agreement['cases']} inputs)")
             lines.append(
-                f"| {row['network']} | {isa} | {_us(theirs)} | {_us(ours)} | {ratio} | "
+                f"| {_network(row)} | {isa} | {_us(theirs)} | {_us(ours)} | {ratio} | "
                 f"{_count(entry.get('compiled_nn_instructions'))} | {_count(entry.get('dribble_instructions'))} | "
                 f"{agrees} |")
     return lines
@@ -67,6 +76,46 @@ def verdicts(result: dict) -> list[str]:
                      if not missed else "Our int8 engine is not faster than CompiledNN's fastest float pass on: "
                      + ", ".join(missed) + ".")
     return lines
+
+
+def onnxruntime_table(result: dict) -> list[str]:
+    """onnxruntime beside our widest instruction set (it picks its own kernels from the CPU and
+    cannot be kept to SSE), float and int8."""
+    rows = [row for row in result["rows"] if row.get("onnxruntime")]
+    if not rows:
+        return []
+    widest = ISAS_BY_WIDTH[-1]
+    lines = [
+        f"Beside {result.get('onnxruntime', 'onnxruntime')}, our engine on its widest set measured ({widest}):",
+        "",
+        "| network | onnxruntime float µs | dribble float µs | onnxruntime int8 µs | dribble int8 µs |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for row in rows:
+        ours = {(e["isa"], bool(e.get("int8"))): e["dribble_us"] for e in row["engines"]}
+        theirs = row["onnxruntime"]
+        lines.append(
+            f"| {_network(row)} | {_us(theirs.get('float_us'))} | {_us(ours.get((widest, False)))} | "
+            f"{_us(theirs.get('int8_us'))} | {_us(ours.get((widest, True)))} |")
+    return lines
+
+
+def onnxruntime_verdicts(result: dict) -> list[str]:
+    widest = ISAS_BY_WIDTH[-1]
+    slower = []
+    for row in result["rows"]:
+        theirs = row.get("onnxruntime")
+        if not theirs:
+            continue
+        for int8, key in ((False, "float_us"), (True, "int8_us")):
+            ours = next((e["dribble_us"] for e in row["engines"]
+                         if e["isa"] == widest and bool(e.get("int8")) == int8), None)
+            if ours is not None and theirs.get(key) is not None and ours >= theirs[key]:
+                slower.append(f"{row['network']} ({'int8' if int8 else 'float'})")
+    if not any(row.get("onnxruntime") for row in result["rows"]):
+        return []
+    return ["Our engine is faster than onnxruntime on every network, float and int8."] if not slower else [
+        "Our engine is not faster than onnxruntime on: " + ", ".join(slower) + "."]
 
 
 def page() -> str:
@@ -98,6 +147,8 @@ def page() -> str:
         *verdicts(result),
         "",
     ]
+    if any(row.get("onnxruntime") for row in result["rows"]):
+        lines += [*onnxruntime_table(result), "", *onnxruntime_verdicts(result), ""]
     return "\n".join(lines)
 
 

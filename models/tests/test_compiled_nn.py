@@ -129,3 +129,21 @@ def test_the_page_reads_the_rows_and_names_where_compiled_nn_is_faster():
     verdicts = " ".join(compiled_nn_report.verdicts(result))
     assert "slower than CompiledNN on: narrow (sse4.2)" in verdicts
     assert "faster than CompiledNN's fastest float pass on every int8 row" in verdicts
+
+
+def test_onnxruntime_stands_beside_our_widest_set_and_a_slower_row_is_named():
+    result = {
+        "cpu": "a CPU", "steps": 10, "method": "m", "onnxruntime": "onnxruntime 1.0",
+        "rows": [{"network": "host model", "policy": "models/policy/some-host", "engines": [
+            {"isa": "ssse3", "compiled_nn_us": 90.0, "dribble_us": 80.0},
+            {"isa": "avx2+fma", "compiled_nn_us": 60.0, "dribble_us": 40.0},
+            {"isa": "avx2+fma", "int8": True, "dribble_us": 35.0},
+        ], "onnxruntime": {"float_us": 50.0, "int8_us": 30.0}}],
+    }
+    lines = compiled_nn_report.onnxruntime_table(result)
+    assert "| host model (`some-host`) | 50 | 40 | 30 | 35 |" in lines
+    verdicts = " ".join(compiled_nn_report.onnxruntime_verdicts(result))
+    assert "not faster than onnxruntime on: host model (int8)" in verdicts
+    result["rows"][0]["onnxruntime"]["int8_us"] = 36.0
+    assert compiled_nn_report.onnxruntime_verdicts(result) == [
+        "Our engine is faster than onnxruntime on every network, float and int8."]
