@@ -12,8 +12,6 @@ from pathlib import Path
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 RESULT = REPOSITORY / "models" / "performance" / "compiled-nn.json"
-# The instruction sets the comparison measures, narrowest first (`compiled_nn.ISAS`).
-ISAS_BY_WIDTH = ("ssse3", "sse4.2", "avx2+fma")
 
 
 def _us(value: float | None) -> str:
@@ -78,42 +76,45 @@ def verdicts(result: dict) -> list[str]:
     return lines
 
 
+def _widest(row: dict) -> str:
+    """The widest instruction set a row measured (the comparison lists them narrowest first)."""
+    return [e["isa"] for e in row["engines"] if not e.get("int8")][-1]
+
+
+def _beside_onnxruntime(row: dict) -> list[tuple[str, float | None, float | None]]:
+    """(float or int8, onnxruntime's µs, ours on the row's widest set): onnxruntime picks its
+    own kernels from the CPU and cannot be kept to SSE."""
+    widest = _widest(row)
+    ours = {bool(e.get("int8")): e["dribble_us"] for e in row["engines"] if e["isa"] == widest}
+    theirs = row["onnxruntime"]
+    return [("float", theirs.get("float_us"), ours.get(False)), ("int8", theirs.get("int8_us"), ours.get(True))]
+
+
 def onnxruntime_table(result: dict) -> list[str]:
-    """onnxruntime beside our widest instruction set (it picks its own kernels from the CPU and
-    cannot be kept to SSE), float and int8."""
+    """onnxruntime beside our widest instruction set, float and int8."""
     rows = [row for row in result["rows"] if row.get("onnxruntime")]
     if not rows:
         return []
-    widest = ISAS_BY_WIDTH[-1]
     lines = [
-        f"Beside {result.get('onnxruntime', 'onnxruntime')}, our engine on its widest set measured ({widest}):",
+        f"Beside {result.get('onnxruntime', 'onnxruntime')}, our engine on its widest set measured "
+        f"({_widest(rows[0])}):",
         "",
         "| network | onnxruntime float µs | dribble float µs | onnxruntime int8 µs | dribble int8 µs |",
         "|---|---:|---:|---:|---:|",
     ]
     for row in rows:
-        ours = {(e["isa"], bool(e.get("int8"))): e["dribble_us"] for e in row["engines"]}
-        theirs = row["onnxruntime"]
-        lines.append(
-            f"| {_network(row)} | {_us(theirs.get('float_us'))} | {_us(ours.get((widest, False)))} | "
-            f"{_us(theirs.get('int8_us'))} | {_us(ours.get((widest, True)))} |")
+        (_, float_theirs, float_ours), (_, int8_theirs, int8_ours) = _beside_onnxruntime(row)
+        lines.append(f"| {_network(row)} | {_us(float_theirs)} | {_us(float_ours)} | "
+                     f"{_us(int8_theirs)} | {_us(int8_ours)} |")
     return lines
 
 
 def onnxruntime_verdicts(result: dict) -> list[str]:
-    widest = ISAS_BY_WIDTH[-1]
-    slower = []
-    for row in result["rows"]:
-        theirs = row.get("onnxruntime")
-        if not theirs:
-            continue
-        for int8, key in ((False, "float_us"), (True, "int8_us")):
-            ours = next((e["dribble_us"] for e in row["engines"]
-                         if e["isa"] == widest and bool(e.get("int8")) == int8), None)
-            if ours is not None and theirs.get(key) is not None and ours >= theirs[key]:
-                slower.append(f"{row['network']} ({'int8' if int8 else 'float'})")
-    if not any(row.get("onnxruntime") for row in result["rows"]):
+    rows = [row for row in result["rows"] if row.get("onnxruntime")]
+    if not rows:
         return []
+    slower = [f"{row['network']} ({kind})" for row in rows for kind, theirs, ours in _beside_onnxruntime(row)
+              if theirs is not None and ours is not None and ours >= theirs]
     return ["Our engine is faster than onnxruntime on every network, float and int8."] if not slower else [
         "Our engine is not faster than onnxruntime on: " + ", ".join(slower) + "."]
 
@@ -147,8 +148,8 @@ def page() -> str:
         *verdicts(result),
         "",
     ]
-    if any(row.get("onnxruntime") for row in result["rows"]):
-        lines += [*onnxruntime_table(result), "", *onnxruntime_verdicts(result), ""]
+    if onnxruntime := onnxruntime_table(result):
+        lines += [*onnxruntime, "", *onnxruntime_verdicts(result), ""]
     return "\n".join(lines)
 
 
