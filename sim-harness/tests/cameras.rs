@@ -211,6 +211,18 @@ fn the_renderer_draws_the_frames_it_always_drew() {
             "light:3",
             "d7c32c4042a18bca92748010e404b7cbe04de08ef6496c031cb8137d90a40b05",
         ),
+        (
+            "exposure:3,white-balance:3",
+            "a5a29ae817c6de4cc4c3cce9263254c80b74c7b8fb5ad3bd31bb05ba591f4bd0",
+        ),
+        (
+            "contrast:3,noise:3",
+            "aa3674eba0327917e02f5954b542352b8afd0c270c709cf6dc2521576fd2b5f2",
+        ),
+        (
+            "motion-blur:3,lens:3",
+            "1ac27a2c6863a49edd063b43426390d861a3311e1ca0f34ecb78daf412574531",
+        ),
     ] {
         let (sha256, adapter) = episode_frames_sha256(10_004, conditions);
         println!("{conditions}: {sha256} ({adapter})");

@@ -27,6 +27,18 @@ struct Effects {
 @group(0) @binding(2) var<uniform> effects: Effects;
 @group(0) @binding(3) var<storage, read> effects_flow: Effects;
 
+// The optional stages this pipeline has. lavapipe runs both sides of every branch under a
+// lane mask, so a stage costs its full price wherever it is in the shader, even in a frame
+// where no pixel takes it; the renderer builds a pipeline per combination (on first use)
+// and, frame by frame, leaves out the stages whose runtime condition below is false for the
+// whole frame (`EffectsStages`): the arithmetic of every stage it keeps is unchanged.
+// Noise: the read or the shot noise is positive.
+override NOISE: bool = true;
+// The camera turns during the exposure or the readout: its angular velocity is not zero.
+override TURN: bool = true;
+// A softer lens: its softness is positive.
+override SOFT_LENS: bool = true;
+
 const GAMMA: f32 = 2.2;
 const TAU: f32 = 6.2831853;
 
@@ -72,9 +84,11 @@ fn rotated(pixel: vec2<f32>, angle: vec3<f32>) -> vec2<f32> {
     let ray = vec3<f32>(1.0, (centre.x - pixel.x) / fx, (centre.y - pixel.y) / fy);
     let theta = length(angle);
     var turned = ray;
-    if (theta > 1e-7) {
-        let k = angle / theta;
-        turned = ray * cos(theta) + cross(k, ray) * sin(theta) + k * dot(k, ray) * (1.0 - cos(theta));
+    if (TURN) {
+        if (theta > 1e-7) {
+            let k = angle / theta;
+            turned = ray * cos(theta) + cross(k, ray) * sin(theta) + k * dot(k, ray) * (1.0 - cos(theta));
+        }
     }
     return vec2<f32>(centre.x - fx * turned.y / turned.x, centre.y - fy * turned.z / turned.x);
 }
@@ -95,12 +109,14 @@ fn exposed(x: u32, y: u32) -> vec3<f32> {
         let share = (f32(i) + 0.5) / f32(samples);
         let t = row_time + (share - 0.5) * exposure;
         var at = rotated(pixel, omega * t);
-        if (effects_flow.readout_vignetting_softness_samples.z > 0.0) {
-            // A Vogel spiral of radius 2 sigma: variance sigma^2 along each axis.
-            let k = f32(i % 8u);
-            let radius = 2.0 * softness * sqrt((k + 0.5) / 8.0);
-            let turn = k * 2.39996323;
-            at = at + radius * vec2<f32>(cos(turn), sin(turn));
+        if (SOFT_LENS) {
+            if (effects_flow.readout_vignetting_softness_samples.z > 0.0) {
+                // A Vogel spiral of radius 2 sigma: variance sigma^2 along each axis.
+                let k = f32(i % 8u);
+                let radius = 2.0 * softness * sqrt((k + 0.5) / 8.0);
+                let turn = k * 2.39996323;
+                at = at + radius * vec2<f32>(cos(turn), sin(turn));
+            }
         }
         sum = sum + linear_at(at);
     }
@@ -116,10 +132,12 @@ fn processed(x: u32, y: u32) -> vec3<f32> {
     var raw = exposed(x, y);
     let read = effects.gain_contrast_noise.z;
     let shot = effects.gain_contrast_noise.w;
-    if (effects_flow.gain_contrast_noise.z > 0.0 || effects_flow.gain_contrast_noise.w > 0.0) {
-        for (var c = 0u; c < 3u; c = c + 1u) {
-            let sigma = sqrt(read + shot * max(raw[c], 0.0));
-            raw[c] = raw[c] + sigma * gaussian(x, y, c);
+    if (NOISE) {
+        if (effects_flow.gain_contrast_noise.z > 0.0 || effects_flow.gain_contrast_noise.w > 0.0) {
+            for (var c = 0u; c < 3u; c = c + 1u) {
+                let sigma = sqrt(read + shot * max(raw[c], 0.0));
+                raw[c] = raw[c] + sigma * gaussian(x, y, c);
+            }
         }
     }
     let balanced = clamp(clamp(raw, vec3<f32>(0.0), vec3<f32>(1.0)) * effects.white_balance.rgb,

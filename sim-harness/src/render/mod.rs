@@ -27,7 +27,7 @@ use crate::camera_model::CameraModel;
 use crate::conditions::camera::CameraEffects;
 use crate::conditions::{EpisodeLook, Occluder};
 use crate::field::FieldGeometry;
-use pipelines::{Pipelines, READ_TWICE};
+use pipelines::{EffectsStages, Pipelines, READ_TWICE};
 use target::{CameraTarget, camera_target};
 use wgpu::BufferUsages as Usages;
 
@@ -330,20 +330,20 @@ impl Renderer {
             });
         }
         let (lit, effects) = self.write_frame_state(position, camera, scene);
-        let commands = self.encode_frame(position, lit, scene.ball.is_some(), effects);
+        let commands = self.encode_frame(position, lit, scene.ball.is_some(), effects.as_ref());
         self.queue.submit([commands]);
         self.read_back(position, frame)
     }
 
     /// Writes what this frame's passes read: the camera's matrix, the ball's, the ball's
     /// shadow caster (lit scenes) and the camera's effects (when the episode has any). Returns
-    /// whether the scene is lit and whether the effects pass runs.
+    /// whether the scene is lit and the effects, when the effects pass runs.
     fn write_frame_state(
         &mut self,
         position: CameraPosition,
         camera: &CameraModel,
         scene: &SceneState,
-    ) -> (bool, bool) {
+    ) -> (bool, Option<CameraEffects>) {
         let target = &self.targets[position.index()];
         self.queue.write_buffer(
             &target.uniform,
@@ -392,7 +392,7 @@ impl Renderer {
             self.queue
                 .write_buffer(&target.effects, 0, bytemuck::bytes_of(effects));
         }
-        (lit, effects.is_some())
+        (lit, effects)
     }
 
     /// The frame's commands: the scene drawn and resolved, then packed into YUYV (through the
@@ -402,7 +402,7 @@ impl Renderer {
         position: CameraPosition,
         lit: bool,
         ball: bool,
-        effects: bool,
+        effects: Option<&CameraEffects>,
     ) -> wgpu::CommandBuffer {
         let target = &self.targets[position.index()];
         let [r, g, b] = self.look.layout.sky;
@@ -457,7 +457,7 @@ impl Renderer {
                 pass.draw(0..self.ball_mesh.vertices, 0..1);
             }
         }
-        if effects {
+        if effects.is_some() {
             let mut pass = compute_pass(&mut encoder, "linear light");
             pass.set_pipeline(&self.pipelines.linear);
             pass.set_bind_group(0, &target.linear_group, &[]);
@@ -465,8 +465,9 @@ impl Renderer {
         }
         {
             let mut pass = compute_pass(&mut encoder, "pack yuyv");
-            if effects {
-                pass.set_pipeline(&self.pipelines.effects);
+            if let Some(effects) = effects {
+                let stages = EffectsStages::of(effects);
+                pass.set_pipeline(self.pipelines.effects(&self.device, stages));
                 pass.set_bind_group(0, &target.effects_group, &[]);
             } else {
                 pass.set_pipeline(&self.pipelines.pack);

@@ -31,8 +31,107 @@ pub(super) struct Pipelines {
     pub(super) pack: wgpu::ComputePipeline,
     /// The resolved image in linear light, for the effects (`linear_light.wgsl`).
     pub(super) linear: wgpu::ComputePipeline,
-    /// The camera's effects, then YUYV (`camera_effects.wgsl`).
-    pub(super) effects: wgpu::ComputePipeline,
+    /// The camera's effects, then YUYV (`camera_effects.wgsl`): one pipeline per
+    /// combination of optional stages, each built the first time a frame needs it.
+    effects: EffectsPipelines,
+}
+
+/// Which optional stages of the effects shader (`camera_effects.wgsl`'s override constants)
+/// a frame needs: a stage is left out only where its runtime condition in the shader is
+/// false for every pixel of the frame, so the frame comes out the same bit for bit, and
+/// lavapipe, which runs both sides of every branch under a lane mask, does not pay for it.
+///
+/// A frame whose camera turns keeps the lens stage: with it left out, LLVM compiles the
+/// turn's sample positions otherwise, and some motion-blurred frames changed in their last
+/// bits (`render_cost`, seeds 10001 and 20007 under motion-blur:3 and :5). With that rule the
+/// frames of every condition measured, `randomized` included, came out the same.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct EffectsStages {
+    /// Read or shot noise (`gain_contrast_noise.z` or `.w` positive).
+    pub(super) noise: bool,
+    /// The camera turns during the exposure (an angular velocity that is not zero: the
+    /// rotation of every sample is zero otherwise).
+    pub(super) turn: bool,
+    /// A softer lens (softness positive).
+    pub(super) soft_lens: bool,
+}
+
+impl EffectsStages {
+    const COMBINATIONS: usize = 8;
+
+    /// The stages `effects` needs, decided with the shader's own comparisons.
+    pub(super) fn of(effects: &CameraEffects) -> Self {
+        let [_, _, read, shot] = effects.gain_contrast_noise;
+        let [x, y, z, _] = effects.omega_exposure;
+        let turn = x != 0.0 || y != 0.0 || z != 0.0;
+        Self {
+            noise: read > 0.0 || shot > 0.0,
+            turn,
+            soft_lens: turn || effects.readout_vignetting_softness_samples[2] > 0.0,
+        }
+    }
+
+    fn index(self) -> usize {
+        usize::from(self.noise) | usize::from(self.turn) << 1 | usize::from(self.soft_lens) << 2
+    }
+
+    /// The shader's override constants for these stages.
+    fn constants(self) -> [(&'static str, f64); 3] {
+        let flag = |on: bool| if on { 1.0 } else { 0.0 };
+        [
+            ("NOISE", flag(self.noise)),
+            ("TURN", flag(self.turn)),
+            ("SOFT_LENS", flag(self.soft_lens)),
+        ]
+    }
+}
+
+/// The effects shader's pipelines, one per [`EffectsStages`], built on first use (an
+/// episode needs one to four of the six; each costs a compilation).
+struct EffectsPipelines {
+    shader: wgpu::ShaderModule,
+    layout: wgpu::PipelineLayout,
+    built: [std::sync::OnceLock<wgpu::ComputePipeline>; EffectsStages::COMBINATIONS],
+}
+
+impl EffectsPipelines {
+    fn new(device: &wgpu::Device, layout: &wgpu::BindGroupLayout) -> Self {
+        let label = Some("camera effects");
+        Self {
+            shader: device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label,
+                source: wgpu::ShaderSource::Wgsl(
+                    concat!(
+                        include_str!("yuyv_pair.wgsl"),
+                        include_str!("camera_effects.wgsl")
+                    )
+                    .into(),
+                ),
+            }),
+            layout: device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label,
+                bind_group_layouts: &[Some(layout)],
+                ..Default::default()
+            }),
+            built: Default::default(),
+        }
+    }
+
+    fn get(&self, device: &wgpu::Device, stages: EffectsStages) -> &wgpu::ComputePipeline {
+        self.built[stages.index()].get_or_init(|| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("camera effects"),
+                layout: Some(&self.layout),
+                module: &self.shader,
+                entry_point: Some("effects_main"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &stages.constants(),
+                    ..Default::default()
+                },
+                cache: None,
+            })
+        })
+    }
 }
 
 impl Pipelines {
@@ -69,16 +168,7 @@ impl Pipelines {
                 effects_storage,
             ],
         });
-        let effects_pipeline = compute_pipeline(
-            device,
-            "camera effects",
-            concat!(
-                include_str!("yuyv_pair.wgsl"),
-                include_str!("camera_effects.wgsl")
-            ),
-            "effects_main",
-            &effects_layout,
-        );
+        let effects_pipelines = EffectsPipelines::new(device, &effects_layout);
         let linear_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("linear light"),
             entries: &[
@@ -129,9 +219,20 @@ impl Pipelines {
             lit_ground,
             pack: pack_pipeline,
             linear: linear_pipeline,
-            effects: effects_pipeline,
+            effects: effects_pipelines,
         };
         (layouts, pipelines)
+    }
+}
+
+impl Pipelines {
+    /// The effects pipeline with `stages` (built now if no frame needed it before).
+    pub(super) fn effects(
+        &self,
+        device: &wgpu::Device,
+        stages: EffectsStages,
+    ) -> &wgpu::ComputePipeline {
+        self.effects.get(device, stages)
     }
 }
 
@@ -299,5 +400,82 @@ pub(super) fn packed_entry() -> wgpu::BindGroupLayoutEntry {
             min_binding_size: None,
         },
         count: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::conditions::Conditions;
+    use glam::Quat;
+
+    /// The effects of frame 5 of seed 7 under `conditions`, the camera having turned by
+    /// `turn_rad` about its vertical axis since the frame before (1/30 s earlier).
+    fn stages(conditions: &str, turn_rad: f32) -> EffectsStages {
+        let conditions: Conditions = conditions.parse().expect("conditions");
+        let plan = conditions.resolve(7).camera;
+        let before = Quat::IDENTITY;
+        let now = Quat::from_rotation_z(turn_rad);
+        let effects = plan.frame(
+            0,
+            5,
+            0.2,
+            now,
+            Some((before, 1.0 / 30.0)),
+            (640, 480),
+            (550.0, 550.0),
+        );
+        EffectsStages::of(&effects)
+    }
+
+    const NONE: EffectsStages = EffectsStages {
+        noise: false,
+        turn: false,
+        soft_lens: false,
+    };
+
+    #[test]
+    fn a_stage_stays_where_a_frame_may_take_it() {
+        assert_eq!(stages("contrast:3,exposure:5,white-balance:2", 0.1), NONE);
+        assert_eq!(
+            stages("noise:1", 0.0),
+            EffectsStages {
+                noise: true,
+                ..NONE
+            }
+        );
+        assert_eq!(
+            stages("lens:1", 0.0),
+            EffectsStages {
+                soft_lens: true,
+                ..NONE
+            }
+        );
+        // A still camera needs no turn even with a long exposure.
+        assert_eq!(stages("motion-blur:5", 0.0), NONE);
+        // A turning one keeps the lens stage too (see `EffectsStages`).
+        assert_eq!(
+            stages("motion-blur:1", 0.05),
+            EffectsStages {
+                turn: true,
+                soft_lens: true,
+                ..NONE
+            }
+        );
+    }
+
+    #[test]
+    fn every_combination_has_its_own_pipeline() {
+        let mut indices = std::collections::BTreeSet::new();
+        for bits in 0..8u8 {
+            let stages = EffectsStages {
+                noise: bits & 1 != 0,
+                turn: bits & 2 != 0,
+                soft_lens: bits & 4 != 0,
+            };
+            assert!(stages.index() < EffectsStages::COMBINATIONS);
+            indices.insert(stages.index());
+        }
+        assert_eq!(indices.len(), EffectsStages::COMBINATIONS);
     }
 }
