@@ -14,6 +14,7 @@
 mod clean_twin;
 mod pipelines;
 mod scene;
+mod shadow_casters;
 mod target;
 
 use std::sync::mpsc;
@@ -129,6 +130,11 @@ pub struct Renderer {
     model_group: wgpu::BindGroup,
     light: wgpu::Buffer,
     light_group: wgpu::BindGroup,
+    /// The episode's light as the lit shader reads it, and every caster it may be given (the
+    /// ball's first, placed at every frame); a frame is given those whose shadow can fall
+    /// in its camera's view ([`shadow_casters`]).
+    light_uniform: Box<LightUniform>,
+    casters: Vec<Occluder>,
     targets: [CameraTarget; 2],
     /// The episode's look: clean until [`Renderer::begin_episode`] says otherwise.
     look: EpisodeLook,
@@ -236,6 +242,8 @@ impl Renderer {
             model_group,
             light,
             light_group,
+            light_uniform: Box::new(bytemuck::Zeroable::zeroed()),
+            casters: Vec::new(),
             targets,
             look: EpisodeLook::clean(),
             previous: [None; 2],
@@ -274,16 +282,11 @@ impl Renderer {
             };
             // The ball first (placed at every frame), then goals, then what stands about.
             let radius = self.field.ball_diameter / 2.0;
-            let casters = std::iter::once(Occluder::new(Vec3::ZERO, Vec3::ZERO, radius))
+            self.casters = std::iter::once(Occluder::new(Vec3::ZERO, Vec3::ZERO, radius))
                 .chain(crate::conditions::venue::goal_occluders(&self.field))
                 .chain(look.layout.occluders())
-                .take(MAX_CASTERS);
-            let mut count = 0;
-            for (i, caster) in casters.enumerate() {
-                uniform.casters[2 * i] = caster.a.extend(caster.radius).to_array();
-                uniform.casters[2 * i + 1] = caster.b.extend(0.0).to_array();
-                count += 1;
-            }
+                .take(MAX_CASTERS)
+                .collect();
             for (i, spot) in sun.spots.iter().take(MAX_SPOTS).enumerate() {
                 let (sin, cos) = spot.angle.sin_cos();
                 uniform.spots[2 * i] = [
@@ -294,9 +297,8 @@ impl Renderer {
                 ];
                 uniform.spots[2 * i + 1] = [cos, sin, spot.gain, 0.0];
             }
-            uniform.counts = [count, sun.spots.len().min(MAX_SPOTS) as u32, 0, 0];
-            self.queue
-                .write_buffer(&self.light, 0, bytemuck::bytes_of(&uniform));
+            uniform.counts = [0, sun.spots.len().min(MAX_SPOTS) as u32, 0, 0];
+            *self.light_uniform = uniform;
         }
         self.look = look.clone();
         self.previous = [None; 2];
@@ -361,15 +363,18 @@ impl Renderer {
         let lit = self.look.layout.sunlight.is_some();
         if lit {
             // The ball's shadow: its caster follows it (a radius of 0 while it is left out).
-            let radius = scene.ball.map_or(0.0, |_| self.field.ball_diameter / 2.0);
-            let centre = scene.ball.map_or(Vec3::ZERO, |(centre, _)| centre);
-            let caster = [
-                centre.extend(radius).to_array(),
-                centre.extend(0.0).to_array(),
-            ];
-            let offset = std::mem::offset_of!(LightUniform, casters) as u64;
-            self.queue
-                .write_buffer(&self.light, offset, bytemuck::cast_slice(&caster));
+            if let Some(ball) = self.casters.first_mut() {
+                let centre = scene.ball.map_or(Vec3::ZERO, |(centre, _)| centre);
+                ball.a = centre;
+                ball.b = centre;
+                ball.radius = scene.ball.map_or(0.0, |_| self.field.ball_diameter / 2.0);
+            }
+            write_casters(
+                &mut self.light_uniform,
+                &self.casters,
+                (&self.queue, &self.light),
+                camera,
+            );
         }
         let index = position.index();
         let effects = (!self.look.camera.is_none()).then(|| {
@@ -507,6 +512,28 @@ impl Renderer {
         target.readback.unmap();
         Ok(())
     }
+}
+
+/// Writes `uniform` into `light` with the `casters` whose shadow can fall in `camera`'s view,
+/// in the episode's order.
+fn write_casters(
+    uniform: &mut LightUniform,
+    casters: &[Occluder],
+    (queue, light): (&wgpu::Queue, &wgpu::Buffer),
+    camera: &CameraModel,
+) {
+    let towards = Vec3::from_slice(&uniform.towards_share[..3]);
+    let view_projection = camera.view_projection();
+    let mut count = 0;
+    for caster in casters {
+        if shadow_casters::may_shadow_view(caster, towards, &view_projection) {
+            uniform.casters[2 * count] = caster.a.extend(caster.radius).to_array();
+            uniform.casters[2 * count + 1] = caster.b.extend(0.0).to_array();
+            count += 1;
+        }
+    }
+    uniform.counts[0] = count as u32;
+    queue.write_buffer(light, 0, bytemuck::bytes_of(uniform));
 }
 
 fn compute_pass<'e>(encoder: &'e mut wgpu::CommandEncoder, label: &str) -> wgpu::ComputePass<'e> {
