@@ -12,6 +12,10 @@
 //! (the manifest and its networks), the teacher, the time limit, the engine, instruction set
 //! and transport. A journal of other settings is not resumed from (it is said why, and the
 //! run starts over); a torn last line (a kill while it was written) is dropped.
+//!
+//! An episode whose controller was lost (it died, or stopped answering within the lock-step
+//! timeout, as on a machine starved by other work) is not kept: it says nothing of the policy
+//! and is played again. A controller that dies on its own dies again and is recorded again.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::Write;
@@ -20,6 +24,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use dribble_controller::policy::manifest::PolicyManifest;
+use dribble_sim::dataset::Outcome;
 use dribble_sim::runner::EpisodeResult;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -177,6 +182,13 @@ fn read_kept(
             break;
         };
         let seed = result.setup.seed;
+        if result.outcome == Outcome::ControllerLost {
+            println!(
+                "resume: seed {seed} lost its controller ({}): played again",
+                result.failure.as_deref().unwrap_or("no reason given")
+            );
+            continue;
+        }
         if seeds.contains(&seed) && kept.iter().all(|(k, _)| k.setup.seed != seed) {
             kept.push((result, engine));
         }
@@ -194,7 +206,6 @@ fn read_kept(
 mod tests {
     use super::*;
     use dribble_controller::tick_stats::TickStats;
-    use dribble_sim::dataset::Outcome;
     use dribble_sim::episode::EpisodeSetup;
     use glam::Vec2;
 
@@ -271,6 +282,28 @@ mod tests {
         assert!(none.is_empty());
         journal.finish().expect("removed");
         assert!(!path.exists());
+        fs::remove_dir_all(dir).expect("clean up");
+    }
+
+    #[test]
+    fn an_episode_whose_controller_was_lost_is_played_again() {
+        let dir = std::env::temp_dir().join(format!("dribble-lost-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        fs::create_dir_all(&dir).expect("scratch");
+        let trajectories = dir.join("t.json");
+        let (mut journal, _) =
+            EvalJournal::start(&trajectories, &settings("a"), &(5..9), true).expect("starts");
+        let mut lost = episode(6);
+        lost.outcome = Outcome::ControllerLost;
+        lost.failure = Some("the controller did not answer tick 203 within 2s".to_owned());
+        for result in [episode(5), lost, episode(7)] {
+            journal.append(&result, Some("compiled")).expect("appends");
+        }
+        drop(journal);
+        let (_, kept) =
+            EvalJournal::start(&trajectories, &settings("a"), &(5..9), true).expect("resumes");
+        let seeds: Vec<u64> = kept.iter().map(|(r, _)| r.setup.seed).collect();
+        assert_eq!(seeds, [5, 7]);
         fs::remove_dir_all(dir).expect("clean up");
     }
 
