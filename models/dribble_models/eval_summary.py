@@ -93,9 +93,15 @@ def summarise_episode(episode: dict) -> dict:
     return summary
 
 
+class LostController(ValueError):
+    """Episodes whose controller died or stopped answering: they say nothing of the policy
+    (a machine starved by other work trips the lock-step timeout), so no summary counts them."""
+
+
 def summarise(trajectories: dict, seeds: range | None = None) -> dict:
     """The summary of every episode, or of those whose seed is in `seeds` (a paired look at
-    the first seeds of a longer run); a seed of `seeds` the file lacks is an error."""
+    the first seeds of a longer run); a seed of `seeds` the file lacks is an error, and so is
+    an episode whose controller was lost (`LostController`)."""
     # The engine that ran the policy ("compiled (avx2+fma)", "tract"): absent from files
     # written before `dribble eval` recorded it, and null for the expert.
     # The conditions the episodes were seen under (`dribble eval --condition`): absent when
@@ -106,6 +112,13 @@ def summarise(trajectories: dict, seeds: range | None = None) -> dict:
         missing = sorted(set(seeds) - {e["seed"] for e in episodes})
         if missing:
             raise ValueError(f"the file holds no episode of the seeds {missing[:5]}")
+    lost = [e["seed"] for e in episodes if e["outcome"] == "controller_lost"]
+    if lost:
+        raise LostController(
+            f"seeds {', '.join(map(str, lost))} lost their controller, which says nothing of the policy: "
+            "play them again (`dribble eval --resume` does while the run's journal is there; "
+            "else move the file aside and run again)"
+        )
     summary = {
         "engine": trajectories.get("engine"),
         "episodes": [summarise_episode(e) for e in episodes],
@@ -124,6 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         trajectories = json.loads(args.trajectories.read_text())
         summary = summarise(trajectories, args.seeds)
+    except LostController as error:
+        print(f"error: {args.trajectories}: {error}", file=sys.stderr)
+        return 3
     except (OSError, ValueError, KeyError, TypeError) as error:
         print(f"error: {args.trajectories} is not a `dribble eval --trajectories` file: {error}", file=sys.stderr)
         return 2

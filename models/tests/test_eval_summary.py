@@ -87,3 +87,15 @@ def test_a_models_other_selection_runs_are_named_by_their_file():
 
     assert selection_run_name("select_randomized") == "randomized"
     assert selection_run_name("select20_clean") == "clean-20"
+
+
+def test_episodes_whose_controller_was_lost_are_refused_not_counted(tmp_path, capsys):
+    robot, ball = [[0.0, 0.0]], [[2.0, 0.0]]
+    episodes = [episode(5, "goal", robot, ball), episode(6, "controller_lost", robot, ball)]
+    source, target = tmp_path / "paths.json", tmp_path / "summary.json"
+    source.write_text(json.dumps({"episodes": episodes}))
+    assert eval_summary.main([str(source), str(target)]) == 3
+    assert "seeds 6 lost their controller" in capsys.readouterr().err
+    assert not target.exists()
+    # A paired look at seeds without the lost one summarises.
+    assert eval_summary.main([str(source), str(target), "--seeds", "5..6"]) == 0
