@@ -66,8 +66,8 @@ pub struct EvalArgs {
     pub(crate) jobs: u16,
     /// Continue a run that was cut off (a session's end, a killed job): keep the episodes
     /// its journal `TRAJECTORIES.partial` holds for the same settings (policy files, teacher,
-    /// time limit, engine, instruction set, transport) and play only the rest, and those
-    /// whose controller was lost again; the files come out as an uninterrupted run's. Needs
+    /// time limit, engine, instruction set, transport) and play only the rest (and, once
+    /// more, any whose controller was lost); the files come out as an uninterrupted run's. Needs
     /// --trajectories. Every run with --trajectories keeps that journal while it runs (with
     /// --jobs, in `TRAJECTORIES.jobs/`).
     #[arg(long, requires = "trajectories")]
