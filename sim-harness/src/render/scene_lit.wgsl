@@ -106,6 +106,7 @@ fn point_distance(point: vec3<f32>, a: vec3<f32>, b: vec3<f32>) -> f32 {
 // runs the skipped work under a mask either way).
 fn lit(point: vec3<f32>) -> f32 {
     let towards = light.towards_share.xyz;
+    // The ray's length bounds each caster's shadow (`render/shadow_casters.rs`, RAY_M).
     let end = point + towards * 25.0;
     var shadowed = false;
     for (var i = 0u; i < min(light_flow.counts.x, MAX_CASTERS); i = i + 1u) {
