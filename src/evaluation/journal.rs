@@ -221,6 +221,14 @@ mod tests {
         }
     }
 
+    /// An empty scratch directory of this test process.
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("dribble-{name}-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        fs::create_dir_all(&dir).expect("scratch");
+        dir
+    }
+
     fn episode(seed: u64) -> EpisodeResult {
         EpisodeResult {
             setup: EpisodeSetup::from_seed(seed),
@@ -240,9 +248,7 @@ mod tests {
 
     #[test]
     fn a_cut_journal_of_the_same_settings_is_kept_and_of_others_is_not() {
-        let dir = std::env::temp_dir().join(format!("dribble-journal-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&dir);
-        fs::create_dir_all(&dir).expect("scratch");
+        let dir = scratch("journal");
         let trajectories = dir.join("t.json");
         let (mut journal, kept) =
             EvalJournal::start(&trajectories, &settings("a"), &(5..9), true).expect("starts");
@@ -287,9 +293,7 @@ mod tests {
 
     #[test]
     fn an_episode_whose_controller_was_lost_is_played_again() {
-        let dir = std::env::temp_dir().join(format!("dribble-lost-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&dir);
-        fs::create_dir_all(&dir).expect("scratch");
+        let dir = scratch("lost");
         let trajectories = dir.join("t.json");
         let (mut journal, _) =
             EvalJournal::start(&trajectories, &settings("a"), &(5..9), true).expect("starts");
@@ -309,9 +313,7 @@ mod tests {
 
     #[test]
     fn the_policy_hash_changes_with_any_network_byte() {
-        let dir = std::env::temp_dir().join(format!("dribble-hash-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&dir);
-        fs::create_dir_all(&dir).expect("scratch");
+        let dir = scratch("hash");
         let shipped = crate::package_dir().join("models/policy/cnn");
         for name in ["policy.toml", "policy.onnx"] {
             fs::copy(shipped.join(name), dir.join(name)).expect("copy");
