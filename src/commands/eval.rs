@@ -12,7 +12,8 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_sim::conditions::Conditions;
-use dribble_sim::runner::EpisodeConfig;
+use dribble_sim::dataset::Outcome;
+use dribble_sim::runner::{EpisodeConfig, EpisodeResult};
 
 use crate::controller_session::ControllerOptions;
 use crate::episodes::Episodes;
@@ -116,8 +117,26 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     if let Some((journal, _)) = journal
         && !args.keep_journal
     {
+        refuse_lost_controllers(&played.results)?;
         journal.finish()?;
     }
+    Ok(())
+}
+
+/// With a journal: an episode whose controller was lost says nothing of the policy, so the
+/// run does not end as if it were done; the journal stays and `--resume` plays it again.
+fn refuse_lost_controllers(results: &[EpisodeResult]) -> anyhow::Result<()> {
+    let lost: Vec<String> = results
+        .iter()
+        .filter(|r| r.outcome == Outcome::ControllerLost)
+        .map(|r| r.setup.seed.to_string())
+        .collect();
+    anyhow::ensure!(
+        lost.is_empty(),
+        "seeds {} lost their controller: the journal is kept; run the same command with \
+         --resume to play them again",
+        lost.join(", ")
+    );
     Ok(())
 }
 
@@ -166,6 +185,9 @@ fn run_in_jobs(args: &EvalArgs, seeds: std::ops::Range<u64>, policy: bool) -> an
         latency: None,
     };
     report(args, policy, &played)?;
+    if args.trajectories.is_some() {
+        refuse_lost_controllers(&played.results)?;
+    }
     // The children's files and journals, once the merged file is written.
     let _ = std::fs::remove_dir_all(&scratch);
     Ok(())
@@ -222,4 +244,47 @@ fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> an
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dribble_controller::tick_stats::TickStats;
+    use dribble_sim::episode::EpisodeSetup;
+
+    fn ended(seed: u64, outcome: Outcome) -> EpisodeResult {
+        EpisodeResult {
+            setup: EpisodeSetup::from_seed(seed),
+            outcome,
+            duration_s: 2.0,
+            distance_walked_m: 0.0,
+            robot_path: Vec::new(),
+            ball_path: Vec::new(),
+            heading_path: Vec::new(),
+            first_sighting_s: None,
+            computed_commands: 0,
+            tick_times: TickStats::new(std::time::Duration::from_millis(10)),
+            failure: None,
+            expert_executed: 0,
+        }
+    }
+
+    #[test]
+    fn a_run_with_lost_controllers_fails_and_names_their_seeds() {
+        let done = [ended(3, Outcome::Goal), ended(4, Outcome::TimeLimit)];
+        assert!(refuse_lost_controllers(&done).is_ok());
+        let lost = [
+            ended(3, Outcome::Goal),
+            ended(4, Outcome::ControllerLost),
+            ended(6, Outcome::ControllerLost),
+        ];
+        let error = refuse_lost_controllers(&lost)
+            .expect_err("refused")
+            .to_string();
+        assert!(
+            error.contains("seeds 4, 6 lost their controller"),
+            "{error}"
+        );
+        assert!(error.contains("--resume"), "{error}");
+    }
 }

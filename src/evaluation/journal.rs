@@ -15,7 +15,9 @@
 //!
 //! An episode whose controller was lost (it died, or stopped answering within the lock-step
 //! timeout, as on a machine starved by other work) is not kept: it says nothing of the policy
-//! and is played again. A controller that dies on its own dies again and is recorded again.
+//! and is played again. A controller that dies on its own dies again and is recorded again. A
+//! run that ends with such episodes keeps its journal (with --jobs, its `.jobs/` directory)
+//! and fails, so that the next `--resume` plays them.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::Write;
