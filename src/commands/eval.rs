@@ -249,23 +249,12 @@ fn describe_driver(args: &EvalArgs, policy_path: Option<&std::path::Path>) -> an
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dribble_controller::tick_stats::TickStats;
-    use dribble_sim::episode::EpisodeSetup;
+    use crate::evaluation::journal::tests::episode;
 
     fn ended(seed: u64, outcome: Outcome) -> EpisodeResult {
         EpisodeResult {
-            setup: EpisodeSetup::from_seed(seed),
             outcome,
-            duration_s: 2.0,
-            distance_walked_m: 0.0,
-            robot_path: Vec::new(),
-            ball_path: Vec::new(),
-            heading_path: Vec::new(),
-            first_sighting_s: None,
-            computed_commands: 0,
-            tick_times: TickStats::new(std::time::Duration::from_millis(10)),
-            failure: None,
-            expert_executed: 0,
+            ..episode(seed)
         }
     }
 

@@ -205,7 +205,7 @@ fn read_kept(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use dribble_controller::tick_stats::TickStats;
     use dribble_sim::episode::EpisodeSetup;
@@ -231,7 +231,8 @@ mod tests {
         dir
     }
 
-    fn episode(seed: u64) -> EpisodeResult {
+    /// A finished episode of `seed` (a goal), for tests here and elsewhere.
+    pub(crate) fn episode(seed: u64) -> EpisodeResult {
         EpisodeResult {
             setup: EpisodeSetup::from_seed(seed),
             outcome: Outcome::Goal,
