@@ -73,6 +73,10 @@ pub(crate) fn configuration(
         simulator["clean_twin"] =
             serde_json::json!("no camera effect or light; venue and robots kept");
     }
+    if !config.multisampling.is_default() {
+        // Named only when not the default four, as the clean twin is.
+        simulator["camera_samples"] = config.multisampling.samples().into();
+    }
     let expert = serde_json::json!(format!("{expert_config:?}"));
     let driver = policy.map(|(path, manifest)| {
         serde_json::json!({

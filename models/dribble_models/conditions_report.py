@@ -88,6 +88,8 @@ def condition_rows(runs: Path, clean: dict | None) -> list[dict]:
         goals, episodes = goals_of(summary)
         if clean is not None and clean.get("engine") != summary.get("engine"):
             raise ReportError(f"{path} ran on {summary.get('engine')}, its clean reference on {clean.get('engine')}")
+        if summary.get("camera_samples", 4) != 4:
+            raise ReportError(f"{path} saw frames of {summary['camera_samples']} camera sample(s) a pixel; the tables compare the 4-sample frames every model was trained on")
         if clean is not None:
             clean_seeds = sorted(e["seed"] for e in clean["episodes"])
             if clean_seeds != sorted(e["seed"] for e in summary["episodes"]):

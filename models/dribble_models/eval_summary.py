@@ -125,6 +125,10 @@ def summarise(trajectories: dict, seeds: range | None = None) -> dict:
     }
     if trajectories.get("conditions"):
         summary["conditions"] = trajectories["conditions"]
+    # Samples a pixel of the cameras' images (`dribble eval --camera-samples`): absent when 4,
+    # the frames every shipped result saw.
+    if trajectories.get("camera_samples", 4) != 4:
+        summary["camera_samples"] = trajectories["camera_samples"]
     return summary
 
 

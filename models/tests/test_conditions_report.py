@@ -51,5 +51,17 @@ def test_runs_on_other_engines_or_seeds_than_clean_are_refused(tmp_path):
         conditions_report.report(root, policies)
 
 
+def test_runs_on_one_sample_frames_are_refused(tmp_path):
+    root, policies = tmp_path / "conditions", tmp_path / "policy"
+    _summary(policies / "best" / "fresh.json", range(30_000, 30_100), 90)
+    path = root / "best" / "fresh20" / "noise-3.json"
+    _summary(path, range(30_000, 30_020), 9)
+    conditions_report.report(root, policies)
+    summary = json.loads(path.read_text())
+    path.write_text(json.dumps({**summary, "camera_samples": 1}))
+    with pytest.raises(conditions_report.ReportError, match="1 camera sample"):
+        conditions_report.report(root, policies)
+
+
 def test_the_committed_table_is_what_the_committed_summaries_give():
     assert conditions_report.main(["--check"]) == 0

@@ -50,6 +50,18 @@ def test_files_from_before_the_engine_was_recorded_summarise_without_one(tmp_pat
     assert json.loads(target.read_text())["engine"] is None
 
 
+def test_camera_samples_are_kept_only_when_not_the_default_four(tmp_path):
+    source, target = tmp_path / "paths.json", tmp_path / "summary.json"
+    episodes = [episode(3, "goal", [[0.0, 0.0]], [[4.5, 0.0]])]
+    for written, kept in [(None, None), (4, None), (1, 1)]:
+        file = {"engine": "tract", "episodes": episodes}
+        if written is not None:
+            file["camera_samples"] = written
+        source.write_text(json.dumps(file))
+        assert eval_summary.main([str(source), str(target)]) == 0
+        assert json.loads(target.read_text()).get("camera_samples") == kept
+
+
 def test_each_failure_has_one_class_from_its_paths():
     far_ball = [[3.0, 0.0]] * 30
     still = [[0.0, 0.0]] * 30

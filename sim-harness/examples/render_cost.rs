@@ -4,8 +4,8 @@
 //! threads included) and a digest of all frames, so that a renderer change can be timed
 //! and checked for identical frames in one run:
 //!
-//! `cargo run --release -p dribble-sim --example render_cost -- [PAIRS] [CONDITIONS] [SEED]`
-//! (defaults: 300, clean, 0).
+//! `cargo run --release -p dribble-sim --example render_cost -- [PAIRS] [CONDITIONS] [SEED]
+//! [SAMPLES]` (defaults: 300, clean, 0, 4; SAMPLES 1 draws one sample a pixel).
 use std::error::Error;
 use std::hash::{DefaultHasher, Hasher};
 
@@ -14,7 +14,7 @@ use dribble_sim::camera_geometry::CameraGeometry;
 use dribble_sim::conditions::Conditions;
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::field::FieldGeometry;
-use dribble_sim::render::Renderer;
+use dribble_sim::render::{Multisampling, Renderer};
 use dribble_sim::simulation::Simulation;
 use dribble_sim::walk::WalkConfig;
 use dribble_sim::world::WorldConfig;
@@ -39,10 +39,16 @@ fn main() -> Result<(), Box<dyn Error>> {
     let pairs: usize = args.next().map_or(Ok(300), |n| n.parse())?;
     let conditions: Conditions = args.next().as_deref().unwrap_or("clean").parse()?;
     let seed: u64 = args.next().map_or(Ok(0), |n| n.parse())?;
+    let multisampling: Multisampling = args.next().as_deref().unwrap_or("4").parse()?;
     let setup = EpisodeSetup::from_seed(seed).under(conditions);
     let cameras = CameraGeometry::nao();
     let field = FieldGeometry::SPL;
-    let mut renderer = Renderer::new(&field, WorldConfig::default().goal_depth, &cameras)?;
+    let mut renderer = Renderer::with_multisampling(
+        &field,
+        WorldConfig::default().goal_depth,
+        &cameras,
+        multisampling,
+    )?;
     renderer.begin_episode(&conditions.resolve(seed));
     let mut simulation = Simulation::new(
         &setup,

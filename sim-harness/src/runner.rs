@@ -33,7 +33,7 @@ use crate::episode::EpisodeSetup;
 use crate::episode_observer::{EpisodeObserver, NoObserver};
 use crate::expert::{Expert, GroundTruth, Phase};
 use crate::field::FieldGeometry;
-use crate::render::{CleanTwin, RenderError, Renderer};
+use crate::render::{CleanTwin, Multisampling, RenderError, Renderer};
 use crate::simulation::{STEPS_PER_MOTION_CYCLE, Simulation};
 use crate::visibility::Visibility;
 use crate::walk::WalkConfig;
@@ -47,6 +47,8 @@ pub struct EpisodeConfig {
     pub walk: WalkConfig,
     pub cameras: CameraGeometry,
     pub control: LoopConfig,
+    /// Samples a pixel of the cameras' images (four: every shipped result's frames).
+    pub multisampling: Multisampling,
 }
 
 impl Default for EpisodeConfig {
@@ -57,6 +59,7 @@ impl Default for EpisodeConfig {
             walk: WalkConfig::default(),
             cameras: CameraGeometry::nao(),
             control: LoopConfig::default(),
+            multisampling: Multisampling::Four,
         }
     }
 }
@@ -64,7 +67,12 @@ impl Default for EpisodeConfig {
 impl EpisodeConfig {
     /// A renderer of these episodes' two cameras on the SPL field.
     pub fn renderer(&self) -> Result<Renderer, RenderError> {
-        Renderer::new(&FieldGeometry::SPL, self.world.goal_depth, &self.cameras)
+        Renderer::with_multisampling(
+            &FieldGeometry::SPL,
+            self.world.goal_depth,
+            &self.cameras,
+            self.multisampling,
+        )
     }
 }
 

@@ -11,7 +11,7 @@ use dribble_sim::dataset::sha256_hex;
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::pose::FieldPose;
-use dribble_sim::render::{Renderer, SceneState};
+use dribble_sim::render::{Multisampling, Renderer, SceneState};
 use dribble_sim::simulation::Simulation;
 use dribble_sim::walk::{HeadSway, WalkConfig};
 use dribble_sim::world::WorldConfig;
@@ -298,4 +298,55 @@ fn a_line_five_metres_away_is_still_visible() {
             "the line at y={y} fades into the carpet: {brightest} vs {carpet_luma}"
         );
     }
+}
+
+#[test]
+fn one_sample_a_pixel_draws_the_same_scene_differing_only_along_edges() {
+    let mut one = Renderer::with_multisampling(
+        &FieldGeometry::SPL,
+        WorldConfig::default().goal_depth,
+        &CameraGeometry::nao(),
+        Multisampling::One,
+    )
+    .unwrap_or_else(|error| panic!("{error}"));
+    assert_eq!(one.multisampling(), Multisampling::One);
+    let mut four = renderer();
+    let camera = camera(CameraPosition::Top, FieldPose::new(-0.5, 0.3, 0.2));
+    let scene = SceneState {
+        ball: Some((Vec3::new(1.0, 0.2, 0.05), Quat::IDENTITY)),
+        time_ns: 0,
+    };
+    let (mut a, mut b) = (TopFrame::new_boxed(), TopFrame::new_boxed());
+    four.render(CameraPosition::Top, &camera, &scene, &mut a)
+        .expect("four samples");
+    one.render(CameraPosition::Top, &camera, &scene, &mut b)
+        .expect("one sample");
+    let (width, height) = (640, 480);
+    let changed = (0..height)
+        .flat_map(|y| (0..width).map(move |x| (x, y)))
+        .filter(|&(x, y)| a.luma(x, y).abs_diff(b.luma(x, y)) > 2)
+        .count();
+    let share = changed as f64 / (width * height) as f64;
+    println!("one sample against four: {changed} luma values differ by more than 2 ({share:.4})");
+    assert!(changed > 0, "one sample a pixel drew the four-sample frame");
+    assert!(
+        share < 0.05,
+        "{share} of the pixels differ: more than edges"
+    );
+    // And the ball is where the pinhole model puts it (on the ground well inside the image).
+    let mount = *CameraGeometry::nao().mount(CameraPosition::Top);
+    let ball = camera
+        .ground_point(Pixel {
+            u: 0.45 * mount.width as f32,
+            v: 0.6 * mount.height as f32,
+        })
+        .expect("the ground is in view")
+        .extend(0.05);
+    let predicted = camera.project(ball).expect("in front");
+    let seen = ball_centroid::<640, 480>(&mut one, CameraPosition::Top, &camera, ball);
+    let error = ((seen.u - predicted.u).powi(2) + (seen.v - predicted.v).powi(2)).sqrt();
+    assert!(
+        error <= 2.0,
+        "{error} px between model and one-sample image"
+    );
 }

@@ -13,6 +13,7 @@ use clap::Args;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_sim::conditions::Conditions;
 use dribble_sim::dataset::Outcome;
+use dribble_sim::render::Multisampling;
 use dribble_sim::runner::{EpisodeConfig, EpisodeResult};
 
 use crate::controller_session::ControllerOptions;
@@ -40,6 +41,12 @@ pub struct EvalArgs {
     /// the trajectories file.
     #[arg(long, visible_alias = "conditions", default_value = "clean")]
     pub(crate) condition: Conditions,
+    /// Samples a pixel of the cameras' images: 4 (the paper's render and every shipped
+    /// result's) or 1 (a clean episode in about half the CPU time on lavapipe; frames differ
+    /// along object edges, docs/src/design/performance.md). Written into the trajectories
+    /// file when not 4; a journal or share of the other count is not merged with this run.
+    #[arg(long, default_value_t = Multisampling::Four)]
+    pub(crate) camera_samples: Multisampling,
     /// Where to write the trajectory plot.
     #[arg(long, default_value = "eval_trajectories.png")]
     pub(crate) plot: PathBuf,
@@ -86,6 +93,7 @@ pub struct EvalArgs {
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let config = EpisodeConfig {
         time_limit_s: args.time_limit,
+        multisampling: args.camera_samples,
         ..EpisodeConfig::default()
     };
     let policy_path =
@@ -93,6 +101,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     describe_driver(args, policy_path.as_deref())?;
     if !args.condition.is_clean() {
         println!("conditions: {}", args.condition);
+    }
+    if !args.camera_samples.is_default() {
+        println!("camera samples: {}", args.camera_samples);
     }
     let seeds = args.episodes.0.clone();
     if args.jobs > 1 && seeds.end - seeds.start > 1 {
@@ -208,6 +219,7 @@ fn run_settings(args: &EvalArgs, policy_path: Option<&Path>) -> anyhow::Result<R
         isa: format!("{:?}", args.controller.isa),
         transport: format!("{:?}", args.controller.transport),
         conditions: args.condition.to_string(),
+        camera_samples: args.camera_samples.samples(),
     })
 }
 

@@ -5,7 +5,7 @@
 //! --trajectories`'s, with its table, goal count and plot.
 //!
 //! The shares must agree on everything but their seeds (simulator, cameras, teacher, driver;
-//! the engine and the conditions for an evaluation) and must not share a seed; every episode
+//! the engine, the conditions and the camera samples for an evaluation) and must not share a seed; every episode
 //! file is checked against the hash its share recorded before it is copied.
 
 use std::fs;
@@ -17,7 +17,7 @@ use dribble_sim::dataset::{DatasetIndex, Outcome};
 use dribble_sim::runner::EpisodeResult;
 
 use crate::evaluation::closed_loop::{print_header, print_row};
-use crate::trajectories::file::{read_trajectories, read_trajectories_engine, write_trajectories};
+use crate::trajectories::file::{read_played_with, read_trajectories, write_trajectories};
 use crate::trajectories::plot::{plot_trajectories, title};
 
 #[derive(Debug, Args)]
@@ -168,13 +168,13 @@ fn merge_trajectories(
                 share.display()
             );
         }
-        engines.push(read_trajectories_engine(share)?);
+        engines.push(read_played_with(share)?);
         results.extend(episodes);
     }
     engines.dedup();
     ensure!(
         engines.len() == 1,
-        "the shares ran different engines: {engines:?}"
+        "the shares ran different engines or camera samples: {engines:?}"
     );
     // One run's conditions (a randomized run's draws differ by seed, its name does not).
     let mut conditions: Vec<String> = results
@@ -189,8 +189,8 @@ fn merge_trajectories(
         conditions.join(", ")
     );
     results.sort_by_key(|r| r.setup.seed);
-    let engine = engines.pop().flatten();
-    write_trajectories(&results, engine.as_deref(), out)?;
+    let played_with = engines.pop().context("no share")?;
+    write_trajectories(&results, &played_with, out)?;
     print_header();
     for result in &results {
         print_row(result);
@@ -199,8 +199,11 @@ fn merge_trajectories(
         .iter()
         .filter(|r| r.outcome == Outcome::Goal)
         .count();
-    if let Some(engine) = &engine {
+    if let Some(engine) = &played_with.engine {
         println!("engine: {engine}");
+    }
+    if !played_with.multisampling.is_default() {
+        println!("camera samples: {}", played_with.multisampling);
     }
     let (low, high) = crate::evaluation::goal_rate::wilson_interval(goals, results.len());
     println!(
@@ -256,6 +259,30 @@ mod tests {
             serde_json::from_str(&fs::read_to_string(&out).expect("read")).expect("json");
         assert_eq!(merged["conditions"], "light:3");
         assert_eq!(merged["episodes"].as_array().map(Vec::len), Some(2));
+        let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn shares_of_different_camera_samples_are_not_merged() {
+        let dir = std::env::temp_dir().join(format!("dribble-merge-ms-{}", std::process::id()));
+        fs::create_dir_all(&dir).expect("dir");
+        let out = dir.join("merged.json");
+        let four = share(&dir, 30_000, None);
+        let one = share(&dir, 30_020, None);
+        let mut file: serde_json::Value =
+            serde_json::from_str(&fs::read_to_string(&one).expect("read")).expect("json");
+        file["camera_samples"] = 1.into();
+        fs::write(&one, file.to_string()).expect("written");
+        let error = merge_trajectories(&out, None, "expert", &[four, one.clone()])
+            .expect_err("different samples");
+        assert!(format!("{error:#}").contains("camera samples"), "{error:#}");
+        assert!(!out.exists());
+        let another_one = share(&dir, 30_040, None);
+        fs::write(&another_one, file.to_string().replace("30020", "30040")).expect("written");
+        merge_trajectories(&out, None, "expert", &[one, another_one]).expect("one run's shares");
+        let merged: serde_json::Value =
+            serde_json::from_str(&fs::read_to_string(&out).expect("read")).expect("json");
+        assert_eq!(merged["camera_samples"], 1);
         let _ = fs::remove_dir_all(&dir);
     }
 }

@@ -14,6 +14,7 @@ use dribble_sim::episode::{EpisodeSetup, reserved_range};
 use dribble_sim::episode_observer::{EpisodeObserver, NoObserver};
 use dribble_sim::expert::{Expert, ExpertConfig};
 use dribble_sim::field::FieldGeometry;
+use dribble_sim::render::Multisampling;
 use dribble_sim::runner::{Driver, EpisodeConfig, ExpertLabels, run_episode_observed};
 
 use crate::controller_session::{ControllerOptions, ControllerSession};
@@ -78,6 +79,11 @@ pub struct RecordArgs {
     /// trainer's `--distill-camera-clean`). Up to twice the rendering time.
     #[arg(long)]
     pub(crate) clean_twin: bool,
+    /// Samples a pixel of the cameras' images: 4 (every shipped result's frames) or 1 (about
+    /// half the CPU of a clean episode; see `dribble eval --help`). Named in dataset.json's
+    /// simulator when not 4, so a dataset never mixes the two.
+    #[arg(long, default_value_t = Multisampling::Four)]
+    pub(crate) camera_samples: Multisampling,
     #[command(flatten)]
     pub(crate) controller: ControllerOptions,
     #[command(flatten)]
@@ -91,6 +97,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let config = EpisodeConfig {
         time_limit_s: args.time_limit,
+        multisampling: args.camera_samples,
         ..EpisodeConfig::default()
     };
     let expert_config = ExpertConfig::default();

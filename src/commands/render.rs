@@ -14,7 +14,7 @@ use dribble_sim::conditions::Conditions;
 use dribble_sim::episode::EpisodeSetup;
 use dribble_sim::field::FieldGeometry;
 use dribble_sim::image_output::{frame_to_rgb, save_thumbnail};
-use dribble_sim::render::Renderer;
+use dribble_sim::render::{Multisampling, Renderer};
 use dribble_sim::simulation::Simulation;
 use dribble_sim::top_view::{BALL, FieldCanvas, ROBOT};
 use dribble_sim::walk::WalkConfig;
@@ -47,6 +47,9 @@ pub struct RenderArgs {
     /// follows the camera's motion.
     #[arg(long, visible_alias = "conditions", default_value = "clean")]
     condition: Conditions,
+    /// Samples a pixel: 4 (every shipped result's frames) or 1 (see `dribble eval --help`).
+    #[arg(long, default_value_t = Multisampling::Four)]
+    camera_samples: Multisampling,
 }
 
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
@@ -56,7 +59,12 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let setup = EpisodeSetup::from_seed(args.seed).under(args.condition);
     let cameras = CameraGeometry::nao();
     let world = WorldConfig::default();
-    let mut renderer = Renderer::new(&FieldGeometry::SPL, world.goal_depth, &cameras)?;
+    let mut renderer = Renderer::with_multisampling(
+        &FieldGeometry::SPL,
+        world.goal_depth,
+        &cameras,
+        args.camera_samples,
+    )?;
     println!("adapter: {}", renderer.adapter());
     renderer.begin_episode(&setup.conditions.resolve(setup.seed));
     let mut simulation = Simulation::new(&setup, world, WalkConfig::default(), cameras);

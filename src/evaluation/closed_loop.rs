@@ -19,7 +19,7 @@ use dribble_sim::runner::{Driver, EpisodeConfig, EpisodeResult, run_episode_obse
 use crate::commands::eval::EvalArgs;
 use crate::controller_session::ControllerSession;
 use crate::evaluation::journal::{EvalJournal, KeptEpisode};
-use crate::trajectories::file::write_trajectories;
+use crate::trajectories::file::{PlayedWith, write_trajectories};
 use crate::trajectories::plot::{plot_trajectories, title};
 
 /// What a run played: every episode, the engine that ran the policy, the controller's latency.
@@ -242,7 +242,11 @@ pub(crate) fn report(args: &EvalArgs, policy: bool, played: &Played) -> anyhow::
     plot_trajectories(results, &title(&args.driver, results), &args.plot)?;
     println!("trajectory plot: {}", args.plot.display());
     if let Some(path) = &args.trajectories {
-        write_trajectories(results, played.engine.as_deref(), path)?;
+        let played_with = PlayedWith {
+            engine: played.engine.clone(),
+            multisampling: args.camera_samples,
+        };
+        write_trajectories(results, &played_with, path)?;
         println!("trajectories: {}", path.display());
     }
     Ok(())

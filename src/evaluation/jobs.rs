@@ -18,7 +18,7 @@ use std::process::{Child, Command, Stdio};
 use anyhow::{Context, bail, ensure};
 use dribble_sim::runner::EpisodeResult;
 
-use crate::trajectories::file::{read_trajectories, read_trajectories_engine};
+use crate::trajectories::file::{read_played_with, read_trajectories};
 
 /// Flags each child gets a value of its own for (the rest are passed on as given).
 const PER_JOB_FLAGS: [&str; 6] = [
@@ -185,7 +185,7 @@ pub fn play(plan: &JobPlan<'_>) -> anyhow::Result<(Vec<EpisodeResult>, Option<St
             job.seeds.end,
             episodes.len()
         );
-        engines.push(read_trajectories_engine(&job.trajectories)?);
+        engines.push(read_played_with(&job.trajectories)?);
         results.extend(episodes);
     }
     if !failed.is_empty() {
@@ -201,9 +201,9 @@ pub fn play(plan: &JobPlan<'_>) -> anyhow::Result<(Vec<EpisodeResult>, Option<St
     engines.dedup();
     ensure!(
         engines.len() <= 1,
-        "the jobs ran different engines: {engines:?}"
+        "the jobs ran different engines or camera samples: {engines:?}"
     );
-    Ok((results, engines.pop().flatten()))
+    Ok((results, engines.pop().and_then(|played| played.engine)))
 }
 
 /// The last `lines` lines of a log.

@@ -47,10 +47,17 @@ pub struct RunSettings {
     /// The conditions the episodes are seen under (`clean` in journals written before).
     #[serde(default = "clean")]
     pub conditions: String,
+    /// Samples a pixel of the cameras' images (4 in journals written before).
+    #[serde(default = "four")]
+    pub camera_samples: u32,
 }
 
 fn clean() -> String {
     "clean".to_owned()
+}
+
+fn four() -> u32 {
+    4
 }
 
 impl RunSettings {
@@ -220,6 +227,7 @@ pub(crate) mod tests {
             isa: "Some(Portable)".to_owned(),
             transport: "Iceoryx2".to_owned(),
             conditions: "clean".to_owned(),
+            camera_samples: 4,
         }
     }
 
@@ -291,6 +299,42 @@ pub(crate) mod tests {
         assert!(none.is_empty());
         journal.finish().expect("removed");
         assert!(!path.exists());
+        fs::remove_dir_all(dir).expect("clean up");
+    }
+
+    #[test]
+    fn a_journal_of_other_camera_samples_is_not_kept_and_an_older_one_reads_as_four() {
+        let dir = scratch("journal-samples");
+        let trajectories = dir.join("t.json");
+        let (mut journal, _) =
+            EvalJournal::start(&trajectories, &settings("a"), &(5..9), false).expect("starts");
+        journal
+            .append(&episode(5), Some("compiled"))
+            .expect("appends");
+        drop(journal);
+        let one_sample = RunSettings {
+            camera_samples: 1,
+            ..settings("a")
+        };
+        let (_, kept) =
+            EvalJournal::start(&trajectories, &one_sample, &(5..9), true).expect("starts");
+        assert!(
+            kept.is_empty(),
+            "episodes seen with four samples are not one sample's"
+        );
+
+        // A journal written before the setting existed names no count: four.
+        let mut older = serde_json::to_value(settings("a")).expect("json");
+        older
+            .as_object_mut()
+            .expect("object")
+            .remove("camera_samples");
+        let path = journal_path(&trajectories);
+        let line = episode_line(&episode(6), Some("compiled")).expect("line");
+        fs::write(&path, format!("{older}\n{line}\n")).expect("older journal");
+        let (_, kept) =
+            EvalJournal::start(&trajectories, &settings("a"), &(5..9), true).expect("resumes");
+        assert_eq!(kept.len(), 1);
         fs::remove_dir_all(dir).expect("clean up");
     }
 

@@ -12,6 +12,7 @@ use dribble_controller::tick_stats::TickStats;
 use dribble_sim::conditions::Conditions;
 use dribble_sim::dataset::Outcome;
 use dribble_sim::episode::EpisodeSetup;
+use dribble_sim::render::Multisampling;
 use dribble_sim::runner::EpisodeResult;
 use glam::Vec2;
 use serde::{Deserialize, Serialize};
@@ -44,6 +45,10 @@ struct RecordedEpisode {
 
 #[derive(Debug, Deserialize, Serialize)]
 struct RecordedEvaluation {
+    /// Samples a pixel of the cameras' images (`dribble eval --camera-samples`), absent when
+    /// 4 (every file written before the setting existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    camera_samples: Option<u32>,
     /// The run's conditions (`dribble eval --condition`), absent when clean.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     conditions: Option<String>,
@@ -51,10 +56,20 @@ struct RecordedEvaluation {
     episodes: Vec<RecordedEpisode>,
 }
 
-/// Writes `results` and the engine that ran them to `path`.
+/// How a trajectories file's episodes were played besides their seeds and conditions: what
+/// the shares of one run must agree on.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PlayedWith {
+    /// The engine that ran the policy (`None`: the expert, or a controller the run joined).
+    pub engine: Option<String>,
+    /// Samples a pixel of the cameras' images.
+    pub multisampling: Multisampling,
+}
+
+/// Writes `results`, played as `played_with` says, to `path`.
 pub fn write_trajectories(
     results: &[EpisodeResult],
-    engine: Option<&str>,
+    played_with: &PlayedWith,
     path: &Path,
 ) -> anyhow::Result<()> {
     let conditions = results
@@ -62,9 +77,11 @@ pub fn write_trajectories(
         .map(|r| r.setup.conditions)
         .filter(|c| !c.is_clean())
         .map(|c| c.to_string());
+    let multisampling = played_with.multisampling;
     let recorded = RecordedEvaluation {
+        camera_samples: (!multisampling.is_default()).then(|| multisampling.samples()),
         conditions,
-        engine: engine.map(str::to_owned),
+        engine: played_with.engine.clone(),
         episodes: results.iter().map(recorded_episode).collect(),
     };
     let text = serde_json::to_string(&recorded)?;
@@ -162,13 +179,21 @@ pub fn read_trajectories(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
     })
 }
 
-/// The engine a trajectories file names (`None`: the expert, or a controller the run joined).
-pub fn read_trajectories_engine(path: &Path) -> anyhow::Result<Option<String>> {
+/// The engine and the camera samples a trajectories file names.
+pub fn read_played_with(path: &Path) -> anyhow::Result<PlayedWith> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let recorded: RecordedEvaluation = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a trajectories file", path.display()))?;
-    Ok(recorded.engine)
+    let multisampling = match recorded.camera_samples {
+        None => Multisampling::Four,
+        Some(samples) => Multisampling::try_from(samples)
+            .with_context(|| format!("{} names camera samples", path.display()))?,
+    };
+    Ok(PlayedWith {
+        engine: recorded.engine,
+        multisampling,
+    })
 }
 
 /// Every episode of the file, in its order ([`episode_result`]).
@@ -219,7 +244,11 @@ mod tests {
         .expect("parses");
         results[0].robot_path = vec![Vec2::new(0.1, -2.6696692)];
         results[0].distance_walked_m = 1.25;
-        write_trajectories(&results, Some("compiled (avx2+fma)"), &path).expect("written");
+        let four = PlayedWith {
+            engine: Some("compiled (avx2+fma)".to_owned()),
+            multisampling: Multisampling::Four,
+        };
+        write_trajectories(&results, &four, &path).expect("written");
         let text = std::fs::read_to_string(&path).expect("read");
         assert_eq!(
             text,
@@ -233,6 +262,18 @@ mod tests {
         let back = read_trajectories(&path).expect("reads");
         assert_eq!(back[0].robot_path, results[0].robot_path);
         assert_eq!(back[0].distance_walked_m, 1.25);
+        assert_eq!(read_played_with(&path).expect("reads"), four);
+
+        // One sample a pixel is named, and read back.
+        let one = PlayedWith {
+            multisampling: Multisampling::One,
+            ..four
+        };
+        write_trajectories(&results, &one, &path).expect("written");
+        let written: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
+        assert_eq!(written["camera_samples"], 1);
+        assert_eq!(read_played_with(&path).expect("reads"), one);
         let _ = std::fs::remove_file(&path);
     }
 
@@ -247,7 +288,11 @@ mod tests {
             )
             .expect("parses");
             results[0].setup = results[0].setup.under(conditions);
-            write_trajectories(&results, None, &path).expect("written");
+            let played_with = PlayedWith {
+                engine: None,
+                multisampling: Multisampling::Four,
+            };
+            write_trajectories(&results, &played_with, &path).expect("written");
             let written: serde_json::Value =
                 serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
             assert_eq!(written["conditions"], text);

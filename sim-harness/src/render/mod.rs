@@ -1,6 +1,7 @@
 //! Headless rendering of the Nao's two cameras with wgpu: the scene is drawn with 4x
-//! multisampling (so that lines far away thin out instead of vanishing), resolved, packed
-//! into YUYV by a compute shader and read back straight into a camera frame.
+//! multisampling (so that lines far away thin out instead of vanishing; one sample is a
+//! setting beside it, [`Multisampling`]), resolved, packed into YUYV by a compute shader and
+//! read back straight into a camera frame.
 //!
 //! An episode's conditions ([`crate::conditions`]) change three things, each only when one
 //! applies, so the clean render stays the paper's bit for bit: the venue's mesh, a lit
@@ -12,6 +13,7 @@
 //! (Debian's `mesa-vulkan-drivers`); its output is the same from run to run.
 
 mod clean_twin;
+mod multisampling;
 mod pipelines;
 mod scene;
 mod shadow_casters;
@@ -33,13 +35,13 @@ use target::{CameraTarget, camera_target};
 use wgpu::BufferUsages as Usages;
 
 pub use clean_twin::CleanTwin;
+pub use multisampling::{Multisampling, MultisamplingError};
 pub use scene::{Mesh, StaticScene, Vertex, ball_mesh, static_scene, static_scene_in};
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// The resolved image in linear light, for the effects pass.
 const LINEAR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
-const SAMPLES: u32 = 4;
 /// Uniform buffer offsets must be multiples of this (wgpu's guaranteed minimum).
 const UNIFORM_STRIDE: u64 = 256;
 /// Shadow casters and bright spots the lit pipeline takes (`scene_lit.wgsl`).
@@ -66,10 +68,11 @@ pub enum RenderError {
     NoAdapter(String),
     #[error("the graphics device could not be opened: {0}")]
     Device(String),
-    #[error("the adapter {adapter} cannot multisample {format:?} {SAMPLES} times")]
+    #[error("the adapter {adapter} cannot multisample {format:?} {samples} times")]
     NoMultisampling {
         adapter: String,
         format: wgpu::TextureFormat,
+        samples: u32,
     },
     #[error("reading the {0} camera image back failed: {1}")]
     Readback(CameraPosition, String),
@@ -120,6 +123,7 @@ pub struct Renderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
     adapter: String,
+    multisampling: Multisampling,
     pipelines: Pipelines,
     field: FieldGeometry,
     goal_depth: f32,
@@ -153,12 +157,24 @@ impl std::fmt::Debug for Renderer {
 }
 
 impl Renderer {
-    /// Opens the first adapter wgpu offers and builds the scene of `field`.
+    /// Opens the first adapter wgpu offers and builds the scene of `field`, drawn with four
+    /// samples a pixel (every shipped result's frames).
     pub fn new(
         field: &FieldGeometry,
         goal_depth: f32,
         cameras: &CameraGeometry,
     ) -> Result<Self, RenderError> {
+        Self::with_multisampling(field, goal_depth, cameras, Multisampling::Four)
+    }
+
+    /// As [`Renderer::new`], each pixel drawn with `multisampling`'s samples.
+    pub fn with_multisampling(
+        field: &FieldGeometry,
+        goal_depth: f32,
+        cameras: &CameraGeometry,
+        multisampling: Multisampling,
+    ) -> Result<Self, RenderError> {
+        let samples = multisampling.samples();
         let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle();
         descriptor.backends = wgpu::Backends::VULKAN;
         let instance = wgpu::Instance::new(descriptor);
@@ -173,10 +189,11 @@ impl Renderer {
             info.name, info.backend, info.driver, info.driver_info
         );
         let features = adapter.get_texture_format_features(COLOUR_FORMAT);
-        if !features.flags.sample_count_supported(SAMPLES) {
+        if !features.flags.sample_count_supported(samples) {
             return Err(RenderError::NoMultisampling {
                 adapter: adapter_name,
                 format: COLOUR_FORMAT,
+                samples,
             });
         }
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
@@ -185,7 +202,7 @@ impl Renderer {
         }))
         .map_err(|error| RenderError::Device(error.to_string()))?;
 
-        let (layouts, pipelines) = Pipelines::new(&device);
+        let (layouts, pipelines) = Pipelines::new(&device, samples);
         let light = target::buffer(
             &device,
             "light",
@@ -226,12 +243,13 @@ impl Renderer {
         });
         let targets = [CameraPosition::Top, CameraPosition::Bottom].map(|camera| {
             let mount = cameras.mount(camera);
-            camera_target(&device, &layouts, mount.width, mount.height)
+            camera_target(&device, &layouts, mount.width, mount.height, samples)
         });
         Ok(Self {
             device,
             queue,
             adapter: adapter_name,
+            multisampling,
             pipelines,
             field: *field,
             goal_depth,
@@ -255,7 +273,12 @@ impl Renderer {
     /// adapter) that draws every frame again without camera effects or light. The
     /// runner records the twin's thumbnails beside each row's; rendering costs up to twice.
     pub fn with_clean_twin(mut self) -> Result<Self, RenderError> {
-        let twin = Renderer::new(&self.field, self.goal_depth, &self.cameras)?;
+        let twin = Renderer::with_multisampling(
+            &self.field,
+            self.goal_depth,
+            &self.cameras,
+            self.multisampling,
+        )?;
         self.clean_twin = Some(Box::new(CleanTwin::new(twin)));
         Ok(self)
     }
@@ -305,6 +328,11 @@ impl Renderer {
         if let Some(twin) = self.clean_twin.as_deref_mut() {
             twin.begin_episode(look);
         }
+    }
+
+    /// The samples each pixel is drawn with.
+    pub fn multisampling(&self) -> Multisampling {
+        self.multisampling
     }
 
     /// The adapter in use, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, llvmpipe ...)".
@@ -420,13 +448,19 @@ impl Renderer {
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("scene"),
+                // Four samples: drawn into the multisampled image, resolved by the driver;
+                // one: drawn straight into the resolved image.
                 color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &target.multisampled,
+                    view: target.multisampled.as_ref().unwrap_or(&target.resolved),
                     depth_slice: None,
-                    resolve_target: Some(&target.resolved),
+                    resolve_target: target.multisampled.as_ref().map(|_| &target.resolved),
                     ops: wgpu::Operations {
                         load: wgpu::LoadOp::Clear(sky),
-                        store: wgpu::StoreOp::Discard,
+                        store: if target.multisampled.is_some() {
+                            wgpu::StoreOp::Discard
+                        } else {
+                            wgpu::StoreOp::Store
+                        },
                     },
                 })],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {

@@ -2,9 +2,7 @@
 //! targets: the flat and the lit scene (render), YUYV packing, linear light and the camera
 //! effects (compute); and the helpers that describe them.
 
-use super::{
-    COLOUR_FORMAT, CameraEffects, DEPTH_FORMAT, LINEAR_FORMAT, LightUniform, SAMPLES, Vertex,
-};
+use super::{COLOUR_FORMAT, CameraEffects, DEPTH_FORMAT, LINEAR_FORMAT, LightUniform, Vertex};
 
 /// The bind group layouts of the pipelines, which the targets' and the renderer's bind
 /// groups are made with.
@@ -136,15 +134,25 @@ impl EffectsPipelines {
 
 impl Pipelines {
     /// Compiles every pipeline of a frame on `device`.
-    pub(super) fn new(device: &wgpu::Device) -> (Layouts, Self) {
+    pub(super) fn new(device: &wgpu::Device, samples: u32) -> (Layouts, Self) {
         let camera_layout = uniform_layout(device, "camera", false);
         let model_layout = uniform_layout(device, "model", true);
         let scene_layouts = [&camera_layout, &model_layout];
         let scene_source = include_str!("scene.wgsl");
-        let scene_pipeline =
-            render_pipeline(device, "scene", scene_source, &scene_layouts, STANDING);
-        let ground_pipeline =
-            render_pipeline(device, "ground", scene_source, &scene_layouts, GROUND);
+        let scene_pipeline = render_pipeline(
+            device,
+            "scene",
+            scene_source,
+            &scene_layouts,
+            (STANDING, samples),
+        );
+        let ground_pipeline = render_pipeline(
+            device,
+            "ground",
+            scene_source,
+            &scene_layouts,
+            (GROUND, samples),
+        );
         let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("light"),
             entries: &read_twice_entries(
@@ -155,8 +163,20 @@ impl Pipelines {
         });
         let lit_layouts = [&camera_layout, &model_layout, &light_layout];
         let lit_source = include_str!("scene_lit.wgsl");
-        let lit_pipeline = render_pipeline(device, "lit scene", lit_source, &lit_layouts, STANDING);
-        let lit_ground = render_pipeline(device, "lit ground", lit_source, &lit_layouts, GROUND);
+        let lit_pipeline = render_pipeline(
+            device,
+            "lit scene",
+            lit_source,
+            &lit_layouts,
+            (STANDING, samples),
+        );
+        let lit_ground = render_pipeline(
+            device,
+            "lit ground",
+            lit_source,
+            &lit_layouts,
+            (GROUND, samples),
+        );
         let [effects_uniform, effects_storage] =
             read_twice_entries(2, wgpu::ShaderStages::COMPUTE, size_of::<CameraEffects>());
         let effects_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -267,7 +287,7 @@ pub(super) fn render_pipeline(
     label: &str,
     source: &str,
     layouts: &[&wgpu::BindGroupLayout],
-    depth_compare: wgpu::CompareFunction,
+    (depth_compare, samples): (wgpu::CompareFunction, u32),
 ) -> wgpu::RenderPipeline {
     let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
@@ -304,7 +324,7 @@ pub(super) fn render_pipeline(
             bias: Default::default(),
         }),
         multisample: wgpu::MultisampleState {
-            count: SAMPLES,
+            count: samples,
             ..Default::default()
         },
         fragment: Some(wgpu::FragmentState {

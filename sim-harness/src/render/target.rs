@@ -1,9 +1,9 @@
-//! A camera's targets: its uniform, the multisampled colour and depth it is drawn into, the
-//! resolved image, the linear-light image, the YUYV buffer and its read-back, and the bind
-//! groups of the passes that read and write them.
+//! A camera's targets: its uniform, the multisampled colour (four samples only) and the depth
+//! it is drawn into, the resolved image, the linear-light image, the YUYV buffer and its
+//! read-back, and the bind groups of the passes that read and write them.
 
 use super::pipelines::{Layouts, READ_TWICE};
-use super::{COLOUR_FORMAT, CameraEffects, DEPTH_FORMAT, LINEAR_FORMAT, SAMPLES};
+use super::{COLOUR_FORMAT, CameraEffects, DEPTH_FORMAT, LINEAR_FORMAT};
 use wgpu::BufferUsages as Usages;
 
 /// Per camera: its uniform, multisampled and resolved targets, and the YUYV buffers.
@@ -12,7 +12,8 @@ pub(super) struct CameraTarget {
     pub(super) height: u32,
     pub(super) uniform: wgpu::Buffer,
     pub(super) camera_group: wgpu::BindGroup,
-    pub(super) multisampled: wgpu::TextureView,
+    /// Absent with one sample a pixel: the scene is drawn straight into `resolved`.
+    pub(super) multisampled: Option<wgpu::TextureView>,
     pub(super) depth: wgpu::TextureView,
     pub(super) resolved: wgpu::TextureView,
     pub(super) packed: wgpu::Buffer,
@@ -29,6 +30,7 @@ pub(super) fn camera_target(
     layouts: &Layouts,
     width: u32,
     height: u32,
+    samples: u32,
 ) -> CameraTarget {
     let size = wgpu::Extent3d {
         width,
@@ -40,16 +42,18 @@ pub(super) fn camera_target(
     let group = |label, layout, resources: &[wgpu::BindingResource<'_>]| {
         bind_group(device, label, layout, resources)
     };
-    let multisampled = texture(
-        "multisampled",
-        COLOUR_FORMAT,
-        SAMPLES,
-        wgpu::TextureUsages::RENDER_ATTACHMENT,
-    );
+    let multisampled = (samples > 1).then(|| {
+        texture(
+            "multisampled",
+            COLOUR_FORMAT,
+            samples,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        )
+    });
     let depth = texture(
         "depth",
         DEPTH_FORMAT,
-        SAMPLES,
+        samples,
         wgpu::TextureUsages::RENDER_ATTACHMENT,
     );
     let resolved = texture(
