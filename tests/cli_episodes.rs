@@ -129,6 +129,24 @@ fn recording_is_byte_identical_resumes_and_inspects() {
     );
     assert!(!log.contains("cameras.top"), "{log}");
     assert!(histograms.is_file() && sheet.is_file());
+    // Nor frames of another sample count: one sample a pixel does not resume four's.
+    let refused = dribble(&[
+        "record",
+        "--episodes",
+        "5..8",
+        "--time-limit",
+        "2",
+        "--camera-samples",
+        "1",
+        "--out",
+        path(&first),
+    ]);
+    let log = text(&refused);
+    assert!(!refused.status.success(), "{log}");
+    assert!(
+        log.contains("camera_samples: recorded null, now 1"),
+        "{log}"
+    );
 
     // A file whose array is shorter than its header says is a typed error naming the file
     // and the array, not a panic.
@@ -342,6 +360,7 @@ fn eval_with_the_expert_counts_goals_and_plots() {
 #[test]
 fn eval_drives_with_a_learned_policy_through_the_rendered_cameras() {
     let plot = scratch("eval-policy").with_extension("png");
+    let trajectories = scratch("eval-policy").with_extension("json");
     let manifest = support::fixture_manifest("cnn");
     let output = dribble(&[
         "eval",
@@ -356,9 +375,18 @@ fn eval_drives_with_a_learned_policy_through_the_rendered_cameras() {
         // The controller process (the default) is tested in controller_process.rs.
         "--transport",
         "in-process",
+        // One sample a pixel (four everywhere else in the suite), named in the file.
+        "--camera-samples",
+        "1",
+        "--trajectories",
+        path(&trajectories),
     ]);
     let log = text(&output);
     assert!(output.status.success(), "{log}");
+    assert!(log.contains("camera samples: 1"), "{log}");
+    let written: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(&trajectories).expect("written")).expect("json");
+    assert_eq!(written["camera_samples"], 1, "{written}");
     assert!(log.contains("driver: CNN policy"), "{log}");
     assert!(log.contains("in-process (controller thread)"), "{log}");
     assert!(log.contains("adapter: "), "{log}");
@@ -376,6 +404,7 @@ fn eval_drives_with_a_learned_policy_through_the_rendered_cameras() {
         "{row}"
     );
     fs::remove_file(plot).expect("clean up");
+    fs::remove_file(trajectories).expect("clean up");
 }
 
 /// Rewrites the `.npz` at `path` with `member`'s bytes shortened by `by` (a valid zip whose

@@ -42,9 +42,10 @@ pub struct EvalArgs {
     #[arg(long, visible_alias = "conditions", default_value = "clean")]
     pub(crate) condition: Conditions,
     /// Samples a pixel of the cameras' images: 4 (the paper's render and every shipped
-    /// result's) or 1 (a clean episode in about half the CPU time on lavapipe; frames differ
-    /// along object edges, docs/src/design/performance.md). Written into the trajectories
-    /// file when not 4; a journal or share of the other count is not merged with this run.
+    /// result's) or 1 (a clean episode in about two fifths of the CPU time on lavapipe,
+    /// models/performance/episode-rate.md; frames differ along object edges). Written into
+    /// the trajectories file when not 4; a journal or share of the other count is not merged
+    /// with this run.
     #[arg(long, default_value_t = Multisampling::Four)]
     pub(crate) camera_samples: Multisampling,
     /// Where to write the trajectory plot.

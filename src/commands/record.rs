@@ -80,8 +80,8 @@ pub struct RecordArgs {
     #[arg(long)]
     pub(crate) clean_twin: bool,
     /// Samples a pixel of the cameras' images: 4 (every shipped result's frames) or 1 (about
-    /// half the CPU of a clean episode; see `dribble eval --help`). Named in dataset.json's
-    /// simulator when not 4, so a dataset never mixes the two.
+    /// two fifths of the CPU of a clean episode; see `dribble eval --help`). Named in
+    /// dataset.json's simulator when not 4, so a dataset never mixes the two.
     #[arg(long, default_value_t = Multisampling::Four)]
     pub(crate) camera_samples: Multisampling,
     #[command(flatten)]
