@@ -8,7 +8,9 @@ exact two-sided McNemar test on those (is one run's goal rate other than the oth
         --label "clean" --out models/performance/camera-samples-selection
 
 Each run is a trajectories file of `dribble eval --trajectories` or its summary
-(`dribble_models.eval_summary`): both list episodes with their seed and outcome. Rows from
+(`dribble_models.eval_summary`): both list episodes with their seed and outcome. With
+`--seeds A..B` only those seeds are compared (both runs must hold every one of them): a
+shorter run beside the first seeds of a longer one. Rows from
 several calls collect in OUT.json (keyed by label) and OUT.md is rewritten from all of them.
 """
 
@@ -20,16 +22,24 @@ import math
 import sys
 from pathlib import Path
 
+from .cluster import seed_range
 from .teachers import wilson
 
 
-def outcomes(path: Path) -> dict[int, str]:
-    """Seed -> outcome of every episode in a trajectories file or a summary."""
+def outcomes(path: Path, seeds: range | None = None) -> dict[int, str]:
+    """Seed -> outcome of every episode in a trajectories file or a summary (of `seeds` only,
+    every one of which it must hold, when given)."""
     data = json.loads(path.read_text())
     episodes = data.get("episodes") if isinstance(data, dict) else None
     if not episodes:
         raise SystemExit(f"paired_runs: {path} lists no episodes")
-    return {int(e["seed"]): e["outcome"] for e in episodes}
+    played = {int(e["seed"]): e["outcome"] for e in episodes}
+    if seeds is None:
+        return played
+    missing = [s for s in seeds if s not in played]
+    if missing:
+        raise SystemExit(f"paired_runs: {path} holds no episode of the seeds {missing[:5]}")
+    return {s: played[s] for s in seeds}
 
 
 def mcnemar_p(only_first: int, only_second: int) -> float:
@@ -52,7 +62,8 @@ def compare(first: dict[int, str], second: dict[int, str]) -> dict:
     only_first = sum(first[s] == "goal" != second[s] for s in seeds)
     only_second = sum(second[s] == "goal" != first[s] for s in seeds)
     return {
-        "seeds": f"{seeds[0]}..{seeds[-1] + 1}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else seeds,
+        # The first and last seed, as the results table names seed sets.
+        "seeds": f"{seeds[0]}..{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else seeds,
         "episodes": len(seeds),
         "goals": goals,
         "intervals": [[round(x, 2) for x in wilson(g, len(seeds))] for g in goals],
@@ -80,11 +91,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", nargs=2, action="append", metavar=("NAME", "FILE"), required=True, help="a run (twice): its name and its file")
     parser.add_argument("--label", required=True, help="the row's label (a row of the same label is replaced)")
     parser.add_argument("--out", type=Path, required=True, help="OUT.json collects the rows, OUT.md is their table")
+    parser.add_argument("--seeds", type=seed_range, metavar="A..B", help="only these seeds (both runs must hold them all)")
     args = parser.parse_args(argv)
     if len(args.run) != 2:
         parser.error("--run is given exactly twice")
     (first_name, first_file), (second_name, second_file) = args.run
-    row = compare(outcomes(Path(first_file)), outcomes(Path(second_file)))
+    row = compare(outcomes(Path(first_file), args.seeds), outcomes(Path(second_file), args.seeds))
     row["names"] = [first_name, second_name]
     store = args.out.with_suffix(".json")
     rows = json.loads(store.read_text()) if store.is_file() else {}
