@@ -5,8 +5,9 @@
 //! --trajectories`'s, with its table, goal count and plot.
 //!
 //! The shares must agree on everything but their seeds (simulator, cameras, teacher, driver;
-//! the engine, the conditions and the camera samples for an evaluation) and must not share a seed; every episode
-//! file is checked against the hash its share recorded before it is copied.
+//! the engine, the conditions and the camera samples for an evaluation) and must not share a
+//! seed; every episode file is checked against the hash its share recorded before it is
+//! copied.
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -157,7 +158,7 @@ fn merge_trajectories(
     shares: &[PathBuf],
 ) -> anyhow::Result<()> {
     let mut results: Vec<EpisodeResult> = Vec::new();
-    let mut engines = Vec::new();
+    let mut played = Vec::new();
     for share in shares {
         let episodes = read_trajectories(share)?;
         for episode in &episodes {
@@ -168,13 +169,13 @@ fn merge_trajectories(
                 share.display()
             );
         }
-        engines.push(read_played_with(share)?);
+        played.push(read_played_with(share)?);
         results.extend(episodes);
     }
-    engines.dedup();
+    played.dedup();
     ensure!(
-        engines.len() == 1,
-        "the shares ran different engines or camera samples: {engines:?}"
+        played.len() == 1,
+        "the shares ran different engines or camera samples: {played:?}"
     );
     // One run's conditions (a randomized run's draws differ by seed, its name does not).
     let mut conditions: Vec<String> = results
@@ -189,7 +190,7 @@ fn merge_trajectories(
         conditions.join(", ")
     );
     results.sort_by_key(|r| r.setup.seed);
-    let played_with = engines.pop().context("no share")?;
+    let played_with = played.pop().context("no share")?;
     write_trajectories(&results, &played_with, out)?;
     print_header();
     for result in &results {

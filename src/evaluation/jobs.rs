@@ -160,7 +160,7 @@ pub fn play(plan: &JobPlan<'_>) -> anyhow::Result<(Vec<EpisodeResult>, Option<St
         });
     }
     let mut results = Vec::new();
-    let mut engines = Vec::new();
+    let mut played_with = Vec::new();
     let mut failed = Vec::new();
     for (index, mut job) in jobs.into_iter().enumerate() {
         let status = job.child.wait()?;
@@ -185,7 +185,7 @@ pub fn play(plan: &JobPlan<'_>) -> anyhow::Result<(Vec<EpisodeResult>, Option<St
             job.seeds.end,
             episodes.len()
         );
-        engines.push(read_played_with(&job.trajectories)?);
+        played_with.push(read_played_with(&job.trajectories)?);
         results.extend(episodes);
     }
     if !failed.is_empty() {
@@ -198,12 +198,12 @@ pub fn play(plan: &JobPlan<'_>) -> anyhow::Result<(Vec<EpisodeResult>, Option<St
         played == expected,
         "the jobs played other seeds than asked for"
     );
-    engines.dedup();
+    played_with.dedup();
     ensure!(
-        engines.len() <= 1,
-        "the jobs ran different engines or camera samples: {engines:?}"
+        played_with.len() <= 1,
+        "the jobs ran different engines or camera samples: {played_with:?}"
     );
-    Ok((results, engines.pop().and_then(|played| played.engine)))
+    Ok((results, played_with.pop().and_then(|with| with.engine)))
 }
 
 /// The last `lines` lines of a log.
