@@ -89,11 +89,14 @@ class NaoDribbleEnv(gym.Env):
         shaping: float = 0.0,
         binary: str | None = None,
         condition: str = "clean",
+        camera_samples: int = 4,
     ):
         if expert not in ("paper", "observable", "orbit", "detector", "detector-one-way"):
             raise ValueError(f"expert is 'paper', 'observable', 'orbit', 'detector' or 'detector-one-way', not {expert!r}")
         if not (time_limit_s > 0 and np.isfinite(time_limit_s)):
             raise ValueError(f"time_limit_s must be positive and finite, not {time_limit_s}")
+        if camera_samples not in (4, 1):
+            raise ValueError(f"camera_samples is 4 (every shipped result's frames) or 1, not {camera_samples!r}")
         self.observation_space = spaces.Dict(
             {
                 "top": spaces.Box(0, 255, TOP_SHAPE, np.uint8),
@@ -107,6 +110,9 @@ class NaoDribbleEnv(gym.Env):
         # What the cameras see the episodes under (`dribble eval --help`: clean, NAME:SEVERITY[,...]
         # or randomized); the server refuses a text it cannot read.
         self.condition = str(condition)
+        # Samples a pixel of the cameras' images: 4, or 1 for about two fifths of the CPU a
+        # clean step costs (frames differ along edges; docs/src/design/performance.md).
+        self.camera_samples = int(camera_samples)
         self._binary = binary
         self._server: subprocess.Popen | None = None
         self._log = None
@@ -127,6 +133,8 @@ class NaoDribbleEnv(gym.Env):
             repr(self.time_limit_s),
             "--condition",
             self.condition,
+            "--camera-samples",
+            str(self.camera_samples),
         ]
         # Its log goes to a file: a pipe nobody reads would fill and stall it.
         self._log = tempfile.TemporaryFile()

@@ -136,6 +136,7 @@ def test_the_books_ten_lines_run(tmp_path, capsys):
 def test_the_environment_plays_under_a_condition_and_refuses_one_it_cannot_read():
     clean = gym_env.NaoDribbleEnv(time_limit_s=1.0)
     noisy = gym_env.NaoDribbleEnv(time_limit_s=1.0, condition="noise:3")
+    one_sample = gym_env.NaoDribbleEnv(time_limit_s=1.0, camera_samples=1)
     try:
         first, _ = clean.reset(seed=20_004)
         seen, _ = noisy.reset(seed=20_004)
@@ -143,9 +144,16 @@ def test_the_environment_plays_under_a_condition_and_refuses_one_it_cannot_read(
         # The same seed under noise: other pixels than clean, the same ones again.
         assert not np.array_equal(first["top"], seen["top"])
         assert np.array_equal(seen["top"], again["top"])
+        # One camera sample a pixel: the same scene, a few thumbnail pixels otherwise (edges).
+        edges, _ = one_sample.reset(seed=20_004)
+        changed = np.abs(edges["top"].astype(int) - first["top"].astype(int)) > 2
+        assert 0 < changed.mean() < 0.05
     finally:
         clean.close()
         noisy.close()
+        one_sample.close()
+    with pytest.raises(ValueError, match="camera_samples"):
+        gym_env.NaoDribbleEnv(camera_samples=2)
     broken = gym_env.NaoDribbleEnv(time_limit_s=1.0, condition="fog:3")
     try:
         with pytest.raises(gym_env.ServerError, match="fog"):

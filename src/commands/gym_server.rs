@@ -65,11 +65,16 @@ pub struct GymServerArgs {
     /// (see `dribble eval --help`); drawn from each reset's seed.
     #[arg(long, visible_alias = "conditions", default_value = "clean")]
     condition: dribble_sim::conditions::Conditions,
+    /// Samples a pixel of the cameras' images: 4 (every shipped result's frames) or 1 (about
+    /// two fifths of the CPU of a clean step; see `dribble eval --help`).
+    #[arg(long, default_value_t = dribble_sim::render::Multisampling::Four)]
+    camera_samples: dribble_sim::render::Multisampling,
 }
 
 pub fn run(args: &GymServerArgs) -> anyhow::Result<()> {
     let config = EpisodeConfig {
         time_limit_s: args.time_limit,
+        multisampling: args.camera_samples,
         ..EpisodeConfig::default()
     };
     let mut renderer = config.renderer()?;
