@@ -57,7 +57,7 @@ fn clean() -> String {
 }
 
 fn four() -> u32 {
-    4
+    dribble_sim::render::Multisampling::Four.samples()
 }
 
 impl RunSettings {

@@ -445,22 +445,22 @@ impl Renderer {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("frame"),
             });
+        // Four samples: drawn into the multisampled image, resolved by the driver; one: drawn
+        // straight into the resolved image, which must then be stored.
+        let (view, resolve_target, store) = match &target.multisampled {
+            Some(multisampled) => (multisampled, Some(&target.resolved), wgpu::StoreOp::Discard),
+            None => (&target.resolved, None, wgpu::StoreOp::Store),
+        };
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("scene"),
-                // Four samples: drawn into the multisampled image, resolved by the driver;
-                // one: drawn straight into the resolved image.
                 color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: target.multisampled.as_ref().unwrap_or(&target.resolved),
+                    view,
                     depth_slice: None,
-                    resolve_target: target.multisampled.as_ref().map(|_| &target.resolved),
+                    resolve_target,
                     ops: wgpu::Operations {
                         load: wgpu::LoadOp::Clear(sky),
-                        store: if target.multisampled.is_some() {
-                            wgpu::StoreOp::Discard
-                        } else {
-                            wgpu::StoreOp::Store
-                        },
+                        store,
                     },
                 })],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {

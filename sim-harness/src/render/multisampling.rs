@@ -62,7 +62,11 @@ impl TryFrom<u32> for Multisampling {
     type Error = MultisamplingError;
 
     fn try_from(samples: u32) -> Result<Self, Self::Error> {
-        samples.to_string().parse()
+        match samples {
+            4 => Ok(Self::Four),
+            1 => Ok(Self::One),
+            other => Err(MultisamplingError(other.to_string())),
+        }
     }
 }
 
