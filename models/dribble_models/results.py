@@ -271,6 +271,34 @@ def lerobot_agreement(directory: Path, models: Path) -> str:
     return "\n".join(lines)
 
 
+def lerobot_curves(directory: Path) -> str:
+    """The learning curves of LeRobot policies trained on dribble's demonstrations: each
+    `models/lerobot/curve-*.json` (`scripts/lerobot curve`), its training (steps, samples,
+    epochs, LeRobot's loss at the start and the end, seconds a step) and the validation error
+    of its checkpoints beside the shipped model's on the same held-out rows."""
+    lines = [
+        "| run | steps (batch) | epochs | seconds a step | training loss, first and last logged | validation error by checkpoint | best | shipped model on the same rows |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for path in sorted(directory.glob("curve-*.json")):
+        curve = read(path)
+        log, points = curve["training"], curve["checkpoints"]
+        if not points:
+            raise ReadmeError(f"{path}: no checkpoint scored")
+        last = log[-1] if log else {"step": points[-1]["step"], "epoch": float("nan")}
+        seconds = statistics.median(s["update_s"] for s in log) if log else float("nan")
+        losses = f"{log[0]['loss']:.3f} (step {log[0]['step']}), {log[-1]['loss']:.3f} (step {log[-1]['step']})" if log else "-"
+        errors = ", ".join(f"{p['step']}: {p['error']:.3f}" for p in points)
+        best = min(points, key=lambda p: p["error"])
+        reference = curve.get("reference")
+        shipped = f"{reference['policy']}: {reference['error']:.3f}" if reference else "-"
+        lines.append(
+            f"| {path.stem.removeprefix('curve-')} | {last['step']} ({curve.get('batch_size') or '?'}) | {last['epoch']:.2f} | "
+            f"{seconds:.2f} | {losses} | {errors} | {best['error']:.3f} (step {best['step']}) | {shipped} |"
+        )
+    return "\n".join(lines)
+
+
 def generated_tables(rows: list[dict]) -> dict[str, str]:
     """Each table of the results by the name its README block carries."""
     return {"results": table(rows), "phases": phase_table(rows), "failures": failure_analysis(rows)}
@@ -390,6 +418,8 @@ def main(argv: list[str] | None = None) -> int:
         lerobot = args.models.parent / "lerobot" if args.models else None
         if lerobot and any(lerobot.glob("eval-*.json")):
             tables["lerobot"] = lerobot_agreement(lerobot, args.models)
+        if lerobot and any(lerobot.glob("curve-*.json")):
+            tables["lerobot-curves"] = lerobot_curves(lerobot)
         try:
             texts = with_tables_in({str(path): path.read_text() for path in args.readme}, tables)
         except (ReadmeError, OSError) as error:

@@ -34,7 +34,7 @@ from . import dataset, seed_ranges
 from .camera_effects import CameraMotion, apply_camera_effects
 from .contract import TOP_SHAPE
 from .gym_equivalence import OnnxPolicy
-from .train import row_errors
+from .command_metric import row_errors
 
 TOP_WIDTH = TOP_SHAPE[1]
 

@@ -72,6 +72,7 @@ from .seed_ranges import refuse_reserved
 from .export import export_policy
 from .gating import fit_centroids
 from .camera_effects import CameraMotion, apply_camera_effects, light_patches
+from .command_metric import row_errors, sent_commands
 from .manifest import Lineage, ModelReference, TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
 from .one_way_detour import OneWayDetour
@@ -87,21 +88,7 @@ CHECKPOINT_FORMAT = 1
 
 
 # ---------------------------------------------------------------------------------------
-# The metric
-
-
-def sent_commands(prediction: np.ndarray) -> np.ndarray:
-    """What the controller publishes for raw outputs [N,3]: each component clamped to
-    [-1, 1]; a row with a non-finite component becomes a stop."""
-    prediction = np.asarray(prediction, dtype=np.float32)
-    finite = np.all(np.isfinite(prediction), axis=1, keepdims=True)
-    return np.where(finite, np.clip(np.nan_to_num(prediction), -1.0, 1.0), 0.0).astype(np.float32)
-
-
-def row_errors(prediction: np.ndarray, expert: np.ndarray) -> np.ndarray:
-    """Per-row Euclidean distance between the sent command and the expert's, float64."""
-    difference = sent_commands(prediction).astype(np.float64) - np.asarray(expert, np.float64)
-    return np.sqrt(np.sum(difference * difference, axis=1))
+# The metric (command_metric.row_errors) over episodes
 
 
 def score(predictions: list[np.ndarray], episodes: list[Episode]) -> dict:

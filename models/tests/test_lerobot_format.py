@@ -141,3 +141,84 @@ def test_lerobots_eval_policy_plays_a_policy_lerobot_saved(tmp_path):
     assert summary["path"].endswith("LeRobot act")
     (episode,) = summary["per_episode"]
     assert episode["seed"] == 10000 and episode["duration_s"] <= 1.0 + 1e-6
+
+
+TRAINER_LOG = (
+    "Training:   2%|▎         | 1/40 [00:03<02:14,  3.44s/step]\r"
+    "INFO 2026-11-30 15:07:02 ot_train.py:435 step:500 smpl:4K ep:5 epch:0.13 loss:0.717 grdn:102.684 lr:1.0e-05 updt_s:2.194 data_s:0.117\n"
+    "INFO 2026-11-30 15:07:23 ot_train.py:435 step:1K smpl:8K ep:10 epch:0.26 loss:0.644 grdn:70.893 lr:1.0e-04 updt_s:2.140 data_s:0.022\n"
+    "scripts/lerobot: resuming run from its last checkpoint\n"
+    "INFO 2026-11-30 16:07:23 ot_train.py:435 step:1K smpl:8K ep:10 epch:0.26 loss:0.641 grdn:70.0 lr:1.0e-04 updt_s:1.9 data_s:0.02\n"
+    "INFO 2026-11-30 16:17:23 ot_train.py:435 step:1.5K smpl:12K ep:15 epch:0.39 loss:0.5 grdn:40.0 lr:1.0e-04 updt_s:1.8 data_s:0.02\n"
+)
+
+
+def test_the_trainers_log_reads_as_steps_and_a_resumed_step_keeps_its_last_line(tmp_path):
+    from dribble_models import lerobot_curve
+
+    log = tmp_path / "run.log"
+    log.write_text(TRAINER_LOG)
+    steps = lerobot_curve.training_log(log)
+    assert [s["step"] for s in steps] == [500, 1000, 1500]
+    assert [s["samples"] for s in steps] == [4000, 8000, 12000]
+    assert steps[1]["loss"] == 0.641 and steps[1]["lr"] == 1e-4 and steps[0]["update_s"] == 2.194
+
+
+def test_checkpoints_are_the_numbered_ones_with_weights(tmp_path):
+    from dribble_models import lerobot_curve
+
+    for name in ("000010", "000002", "last", "000020"):
+        (tmp_path / "checkpoints" / name / "pretrained_model").mkdir(parents=True)
+    for name in ("000010", "000002", "last"):
+        (tmp_path / "checkpoints" / name / "pretrained_model" / "model.safetensors").write_bytes(b"")
+    assert [step for step, _ in lerobot_curve.checkpoints(tmp_path)] == [2, 10]
+
+
+SELECT_ACTION_AGREES = """
+import sys
+from pathlib import Path
+import numpy as np
+import torch
+from dribble_models import lerobot_curve
+from dribble_models.dataset import load
+from dribble_models.lerobot_eval import policy_and_processors
+
+model, dataset = Path(sys.argv[1]), Path(sys.argv[2])
+(episode,) = load(dataset).episodes
+batched = lerobot_curve.commands(model, episode)
+policy, preprocessor, postprocessor, _ = policy_and_processors(model)
+one_by_one = []
+with torch.no_grad():
+    for row in range(len(episode.command)):
+        policy.reset()
+        action = policy.select_action(preprocessor(lerobot_curve.batch_of(episode, slice(row, row + 1))))
+        one_by_one.append(postprocessor(action).numpy()[0])
+difference = float(np.abs(batched - np.array(one_by_one)).max())
+print(difference)
+assert batched.shape == (len(episode.command), 3) and difference < 1e-5, difference
+"""
+
+
+@pytest.mark.skipif(not (LEROBOT_VENV / "bin" / "python").exists(), reason="no LeRobot environment (scripts/lerobot makes one)")
+def test_the_curves_commands_are_what_lerobots_select_action_sends(tmp_path):
+    """The validation error of a checkpoint scores the command LeRobot's own `select_action`
+    would send on each row (the first of the chunk, through the saved processors), in batches."""
+    checkpoint = tmp_path / "run" / "checkpoints" / "000002" / "pretrained_model"
+    environment = {**os.environ, "PYTHONPATH": str(REPOSITORY / "models")}
+    made = subprocess.run([str(LEROBOT_VENV / "bin" / "python"), "-c", TINY_ACT, str(checkpoint)], capture_output=True, text=True, env=environment)
+    assert made.returncode == 0, made.stderr[-2000:]
+    lerobot_format.write_dribble([(episode(7, 70), {})], tmp_path / "data", teacher="detector")
+    agreed = subprocess.run(
+        [str(LEROBOT_VENV / "bin" / "python"), "-c", SELECT_ACTION_AGREES, str(checkpoint), str(tmp_path / "data")],
+        capture_output=True, text=True, env=environment,
+    )  # fmt: skip
+    assert agreed.returncode == 0, agreed.stderr[-2000:]
+    curve = tmp_path / "curve.json"
+    scored = subprocess.run(
+        [str(REPOSITORY / "scripts" / "lerobot"), "curve", str(tmp_path / "run"), "--dataset", str(tmp_path / "data"),
+         "--seeds", "7..8", "--out", str(curve)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert scored.returncode == 0, scored.stderr[-2000:]
+    (point,) = json.loads(curve.read_text())["checkpoints"]
+    assert point["step"] == 2 and point["rows"] == 70 and 0.0 < point["error"] < 2 * np.sqrt(3)
