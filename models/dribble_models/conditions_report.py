@@ -25,6 +25,7 @@ import tempfile
 from collections import Counter
 from pathlib import Path
 
+from .eval_summary import FAILURE_CLASSES, class_of
 from .teachers import wilson
 
 #: The conditions in the order the simulator lists them (sim-harness/src/conditions).
@@ -94,7 +95,7 @@ def condition_rows(runs: Path, clean: dict | None) -> list[dict]:
             clean_seeds = sorted(e["seed"] for e in clean["episodes"])
             if clean_seeds != sorted(e["seed"] for e in summary["episodes"]):
                 raise ReportError(f"{path} and its clean reference played other seeds")
-        failures = Counter(e["failure_class"] for e in summary["episodes"] if e["outcome"] != "goal" and e.get("failure_class"))
+        failures = Counter(class_of(e) for e in summary["episodes"] if e["outcome"] != "goal")
         condition, _, severity = path.stem.rpartition("-")
         rows.append(
             {
@@ -137,7 +138,7 @@ def table(policy: str, seed_set: str, clean: dict | None, rows: list[dict]) -> s
     if clean is not None:
         goals, episodes = goals_of(clean)
         clean_rate = goals / episodes if episodes else None
-        failures = Counter(e["failure_class"] for e in clean["episodes"] if e["outcome"] != "goal" and e.get("failure_class"))
+        failures = Counter(class_of(e) for e in clean["episodes"] if e["outcome"] != "goal")
         lines.append(f"| clean | - | {interval(goals, episodes)} | 1.00 | {failure_text(failures)} |")
     for row in rows:
         ratio = "-" if not clean_rate else f"{row['goals'] / row['episodes'] / clean_rate:.2f}"
@@ -157,6 +158,10 @@ def report(root: Path, policies: Path) -> str:
         "own resolution before YUYV packing, its random draws taken from the episode's seed. Goals with "
         "their Wilson 95 % interval; the ratio is to the same policy's clean goals on the same seeds with "
         "the same engine. Fresh and test seeds are for reporting only; choices are made on the selection seeds.",
+        "",
+        "Failure classes (`dribble_models.eval_summary`, from each episode's paths): "
+        + "; ".join(f"*{name.replace('_', ' ')}*: {meaning}" for name, meaning in FAILURE_CLASSES.items())
+        + ".",
         "",
         "![The top camera's thumbnail under each condition](frames.png)",
     ]

@@ -32,6 +32,8 @@ REACHED_M = 0.3
 #: Getting this far from the start without reaching the ball is walking off, metres (the
 #: farthest point, not the path's length: a standing robot's sway adds up to metres of path).
 WALKED_OFF_M = 1.0
+#: A robot that reached the ball and stood this share of the episode stood at the ball.
+STOOD_AT_THE_BALL_SHARE = 0.5
 #: Turning this far in all without walking off is turning in place, radians.
 TURNED_IN_PLACE_RAD = math.pi
 
@@ -39,7 +41,8 @@ TURNED_IN_PLACE_RAD = math.pi
 FAILURE_CLASSES = {
     "ball_out": "the ball left the field",
     "controller_lost": "the controller died or stopped answering",
-    "lost_the_ball": "reached the ball (within 0.3 m), then no goal in time",
+    "stood_at_the_ball": "reached the ball (within 0.3 m), then no goal: stood (under 5 cm a second) half the episode or more",
+    "lost_the_ball": "reached the ball (within 0.3 m), then no goal in time, moving most of it",
     "walked_off": "never reached the ball, went 1 m or more from where it started",
     "turned_in_place": "never reached the ball, stayed within 1 m of its start, turned half a turn or more",
     "stood": "never reached the ball, stayed within 1 m of its start, turned less than half a turn",
@@ -60,12 +63,25 @@ def failure_class(summary: dict) -> str | None:
     if outcome in ("ball_out", "controller_lost"):
         return outcome
     if summary.get("closest_to_ball_m", math.inf) <= REACHED_M:
-        return "lost_the_ball"
+        # Standing beside the ball is its own failure (a reactive policy that cannot tell
+        # which goal is its target there); a file without the standing share cannot tell.
+        return "stood_at_the_ball" if summary.get("standing_share", 0.0) >= STOOD_AT_THE_BALL_SHARE else "lost_the_ball"
     if summary.get("farthest_from_start_m", 0.0) >= WALKED_OFF_M:
         return "walked_off"
     if summary.get("turned_rad") is None:
         return "stood_or_turned"
     return "turned_in_place" if summary["turned_rad"] >= TURNED_IN_PLACE_RAD else "stood"
+
+
+def class_of(summary: dict) -> str | None:
+    """An episode summary's failure class by today's rule where it holds the paths' figures
+    (a summary written before a class was added is read by the new rule), else the class
+    it was written with, else its outcome."""
+    if summary["outcome"] == "goal":
+        return None
+    if "closest_to_ball_m" in summary and "farthest_from_start_m" in summary:
+        return failure_class(summary)
+    return summary.get("failure_class") or summary["outcome"]
 
 
 def summarise_episode(episode: dict) -> dict:

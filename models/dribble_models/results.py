@@ -31,7 +31,7 @@ import sys
 from pathlib import Path
 
 from .dataset import PHASES
-from .eval_summary import failure_class
+from .eval_summary import class_of
 from .manifest import load
 from .shipping_rules import (
     INT8_ERROR_MARGIN,
@@ -160,7 +160,7 @@ def failure_analysis(rows: list[dict]) -> str:
         median_end = f"{statistics.median(ends):.2f} m" if ends else "-"
         standing = [e["standing_share"] for e in failed]
         median_standing = f"{statistics.median(standing):.0%}" if standing else "-"
-        classes = Counter(e.get("failure_class") or failure_class(e) for e in failed) if all("farthest_from_start_m" in e for e in failed) else Counter()
+        classes = Counter(class_of(e) for e in failed) if all("farthest_from_start_m" in e for e in failed) else Counter()
         described = ", ".join(f"{name.replace('_', ' ')} {count}" for name, count in sorted(classes.items(), key=lambda c: (-c[1], c[0]))) or "-"
         lines.append(
             f"| {row['name']} | {len(failed)} | {outcomes['time_limit']} / {outcomes['ball_out']} / {other} | {reached} | {toward} | {median_end} | {median_standing} | {described} |"
@@ -229,7 +229,7 @@ def selection_runs(directory: Path) -> str:
         episodes = summary["episodes"]
         seeds = sorted(int(e["seed"]) for e in episodes)
         failed = [e for e in episodes if e["outcome"] != "goal"]
-        classes = Counter(e.get("failure_class") or e["outcome"] for e in failed)
+        classes = Counter(class_of(e) for e in failed)
         described = ", ".join(f"{name.replace('_', ' ')} {count}" for name, count in sorted(classes.items(), key=lambda c: (-c[1], c[0]))) or "-"
         times = [e["duration_s"] for e in episodes if e["outcome"] == "goal"]
         median = f"{statistics.median(times):.1f} s" if times else "-"

@@ -75,6 +75,17 @@ def test_each_failure_has_one_class_from_its_paths():
     assert eval_summary.summarise_episode(dict(episode(3, "time_limit", walking, far_ball), heading=[0.0] * 30))["failure_class"] == "walked_off"
     reached = [[0.1 * i, 0.0] for i in range(30)]  # ends 0.1 m from the ball
     assert eval_summary.summarise_episode(episode(4, "time_limit", reached, far_ball))["failure_class"] == "lost_the_ball"
+    # Reaching the ball in 0.6 s and standing there the rest of the episode.
+    reached_then_still = [[min(0.5 * i, 2.8), 0.0] for i in range(30)]
+    stood = eval_summary.summarise_episode(episode(9, "time_limit", reached_then_still, far_ball))
+    assert stood["standing_share"] >= 0.5 and stood["failure_class"] == "stood_at_the_ball"
+    # A summary written before that class existed is read by today's rule; one without the
+    # paths' figures keeps its class, and a goal has none.
+    older = {**stood, "failure_class": "lost_the_ball"}
+    assert eval_summary.class_of(older) == "stood_at_the_ball"
+    assert eval_summary.class_of({"outcome": "time_limit", "failure_class": "stood"}) == "stood"
+    assert eval_summary.class_of({"outcome": "ball_out"}) == "ball_out"
+    assert eval_summary.class_of({**stood, "outcome": "goal"}) is None
     assert eval_summary.summarise_episode(episode(5, "ball_out", still, far_ball))["failure_class"] == "ball_out"
     assert eval_summary.summarise_episode(episode(6, "goal", reached, far_ball))["failure_class"] is None
     # Files without headings cannot tell standing from turning.
