@@ -17,6 +17,9 @@ curves come out of it:
   each predicted chunk sent (the exports' `n_action_steps` of 1). The seeds must be episodes
   the run never trained on: the ones its export held out, or a recording beside it.
 
+The last checkpoint's forward pass is timed too (`forward`: one command as the closed loop
+asks for it, on one thread), the figure to hold against the robot's tick.
+
 `--reference` adds a shipped dribble model's validation error on the same seeds (its
 manifest's `validation_error` when its `validation_seeds` are these, else computed with
 onnxruntime as the controller would run it) as a line in the plot. Each checkpoint's error is
@@ -118,6 +121,30 @@ def commands(model: Path, episode: Episode) -> np.ndarray:
     return np.concatenate(sent).astype(np.float32)
 
 
+def forward_ms(model: Path, episode: Episode, rows: int = 60, warm_up: int = 10) -> dict:
+    """One command as the closed loop asks for it (a reset, LeRobot's `select_action` on one
+    row through the saved processors), on one thread: the median and the 90th percentile over
+    `rows` rows after `warm_up`, milliseconds. Beside it the robot's tick is about 2 ms."""
+    import statistics
+
+    import torch
+
+    from .lerobot_eval import policy_and_processors
+
+    torch.set_num_threads(1)
+    policy, preprocessor, postprocessor, _ = policy_and_processors(model)
+    times = []
+    with torch.no_grad():
+        for row in range(min(rows + warm_up, len(episode.command))):
+            batch = batch_of(episode, slice(row, row + 1))
+            started = time.perf_counter()
+            policy.reset()
+            postprocessor(policy.select_action(preprocessor(batch)))
+            times.append(time.perf_counter() - started)
+    kept = times[warm_up:] or times
+    return {"median_ms": round(1e3 * statistics.median(kept), 2), "p90_ms": round(1e3 * float(np.percentile(kept, 90)), 2), "rows": len(kept), "threads": 1}
+
+
 def validation_error(model: Path, episodes: list[Episode]) -> dict:
     """dribble's validation error of a LeRobot checkpoint on `episodes`."""
     errors = [row_errors(commands(model, e), e.command) for e in episodes]
@@ -197,6 +224,8 @@ def curve(run: Path, log: Path, dataset: Path, seeds: range, reference: Path | N
         "training": training_log(log) if log.is_file() else [],
         "checkpoints": [scored[s] for s in sorted(scored)],
     }
+    if last:
+        summary["forward"] = {"step": last[-1][0], **forward_ms(last[-1][1], episodes[0])}
     if reference is not None:
         summary["reference"] = (kept or {}).get("reference") or reference_error(reference, episodes, list(seeds))
     return summary
