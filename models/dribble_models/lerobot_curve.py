@@ -57,22 +57,31 @@ def count(text: str) -> int:
     return round(float(text.rstrip("KMB")) * scale)
 
 
+#: The trainer's progress bar (`Training:  25%|...| 10/40 [...]`): the exact step, where the
+#: log line itself rounds it ("step:1K" from 1,000 to 1,499).
+PROGRESS = re.compile(r"\| *(?P<step>[0-9]+)/[0-9]+ \[")
+
+
 def training_log(log: Path) -> list[dict]:
-    """The trainer's logged steps, in order; a resumed run's repeated steps keep the last."""
+    """The trainer's logged steps, in order; a resumed run's repeated steps keep the last.
+    A line's step is that of the progress bar drawn on the same line before it, else the
+    line's own rounded one."""
+    text = log.read_text(errors="replace")
     steps: dict[int, dict] = {}
-    for line in log.read_text(errors="replace").replace("\r", "\n").splitlines():
-        found = LOG_LINE.search(line)
-        if found:
-            step = count(found["step"])
-            steps[step] = {
-                "step": step,
-                "samples": count(found["samples"]),
-                "epoch": float(found["epoch"]),
-                "loss": float(found["loss"]),
-                "grad_norm": float(found["grad_norm"]),
-                "lr": float(found["lr"]),
-                "update_s": float(found["update_s"]),
-            }
+    for found in LOG_LINE.finditer(text):
+        # The bar LeRobot drew on the same line (tqdm redraws with carriage returns).
+        line_start = text.rfind("\n", 0, found.start()) + 1
+        bars = list(PROGRESS.finditer(text, line_start, found.start()))
+        step = int(bars[-1]["step"]) if bars else count(found["step"])
+        steps[step] = {
+            "step": step,
+            "samples": count(found["samples"]),
+            "epoch": float(found["epoch"]),
+            "loss": float(found["loss"]),
+            "grad_norm": float(found["grad_norm"]),
+            "lr": float(found["lr"]),
+            "update_s": float(found["update_s"]),
+        }
     return [steps[s] for s in sorted(steps)]
 
 
