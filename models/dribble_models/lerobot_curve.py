@@ -20,6 +20,9 @@ curves come out of it:
 The last checkpoint's forward pass is timed too (`forward`: one command as the closed loop
 asks for it, on one thread), the figure to hold against the robot's tick.
 
+`--training-dataset` scores one constant command beside them, the median of the rows the run
+trained on: a checkpoint no better than it has not yet learned to read its images.
+
 `--reference` adds a shipped dribble model's validation error on the same seeds (its
 manifest's `validation_error` when its `validation_seeds` are these, else computed with
 onnxruntime as the controller would run it) as a line in the plot. Each checkpoint's error is
@@ -176,6 +179,14 @@ def reference_error(policy: Path, episodes: list[Episode], seeds: list[int]) -> 
     return {"policy": manifest_path.parent.name, "error": float(np.concatenate(errors).mean()), "from": "onnxruntime on the rows"}
 
 
+def constant_error(training: Path, episodes: list[Episode]) -> dict:
+    """The error of one constant command, the training rows' per-component median, on the
+    held-out rows: what a network that has not yet learned to read its images scores."""
+    command = np.median(np.concatenate([e.command for e in load(training).episodes]), axis=0)
+    errors = np.concatenate([row_errors(np.repeat(command[None], len(e.command), axis=0), e.command) for e in episodes])
+    return {"command": [round(float(c), 4) for c in command], "error": float(errors.mean()), "training": str(training)}
+
+
 def plot(summary: dict, out: Path) -> None:
     import matplotlib
 
@@ -195,6 +206,9 @@ def plot(summary: dict, out: Path) -> None:
     reference = summary.get("reference")
     if reference:
         error_axis.axhline(reference["error"], color="tab:green", linestyle="--", label=f"{reference['policy']} (validation error)")
+    constant = summary.get("constant")
+    if constant:
+        error_axis.axhline(constant["error"], color="tab:gray", linestyle=":", label="one constant command (the training rows' median)")
     error_axis.set_ylabel(f"validation error, seeds {summary['seeds']} (dribble's metric)", color="tab:red")
     error_axis.set_ylim(bottom=0)
     handles = loss_axis.get_legend_handles_labels()[0] + error_axis.get_legend_handles_labels()[0]
@@ -207,7 +221,7 @@ def plot(summary: dict, out: Path) -> None:
     plt.close(figure)
 
 
-def curve(run: Path, log: Path, dataset: Path, seeds: range, reference: Path | None, kept: dict | None) -> dict:
+def curve(run: Path, log: Path, dataset: Path, seeds: range, reference: Path | None, kept: dict | None, training: Path | None = None) -> dict:
     episodes = load(dataset, require_seeds=list(seeds)).episodes
     episodes = [e for e in episodes if e.seed in seeds]
     scored = {c["step"]: c for c in (kept or {}).get("checkpoints", []) if kept and kept.get("seeds") == f"{seeds.start}..{seeds.stop - 1}"}
@@ -235,6 +249,8 @@ def curve(run: Path, log: Path, dataset: Path, seeds: range, reference: Path | N
     }
     if last:
         summary["forward"] = {"step": last[-1][0], **forward_ms(last[-1][1], episodes[0])}
+    if training is not None:
+        summary["constant"] = constant_error(training, episodes)
     if reference is not None:
         summary["reference"] = (kept or {}).get("reference") or reference_error(reference, episodes, list(seeds))
     return summary
@@ -247,6 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--dataset", type=Path, required=True, help="a dribble dataset holding the held-out episodes")
     parser.add_argument("--seeds", type=seed_range, required=True, metavar="A..B", help="the held-out episodes' seeds, A to B - 1")
     parser.add_argument("--reference", type=Path, help="a shipped model (models/policy/NAME) whose validation error on the same seeds is drawn beside")
+    parser.add_argument("--training-dataset", type=Path, help="the dribble dataset the run was trained on: one constant command, its rows' median, is scored beside")
     parser.add_argument("--out", type=Path, required=True, help="the curve (JSON); checkpoints already in it are not scored again")
     parser.add_argument("--plot", type=Path, help="the curve as a picture (PNG)")
     args = parser.parse_args(argv)
@@ -254,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"{args.run} has no checkpoints/: not a lerobot-train output directory")
     kept = json.loads(args.out.read_text()) if args.out.is_file() else None
     log = args.log or args.run.with_name(args.run.name + ".log")
-    summary = curve(args.run, log, args.dataset, args.seeds, args.reference, kept)
+    summary = curve(args.run, log, args.dataset, args.seeds, args.reference, kept, args.training_dataset)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=1) + "\n")
     if args.plot:

@@ -221,9 +221,16 @@ def test_the_curves_commands_are_what_lerobots_select_action_sends(tmp_path):
     curve = tmp_path / "curve.json"
     scored = subprocess.run(
         [str(REPOSITORY / "scripts" / "lerobot"), "curve", str(tmp_path / "run"), "--dataset", str(tmp_path / "data"),
-         "--seeds", "7..8", "--out", str(curve)],
+         "--seeds", "7..8", "--training-dataset", str(tmp_path / "data"), "--out", str(curve)],
         capture_output=True, text=True,
     )  # fmt: skip
     assert scored.returncode == 0, scored.stderr[-2000:]
-    (point,) = json.loads(curve.read_text())["checkpoints"]
+    summary = json.loads(curve.read_text())
+    (point,) = summary["checkpoints"]
     assert point["step"] == 2 and point["rows"] == 70 and 0.0 < point["error"] < 2 * np.sqrt(3)
+    # One constant command, the training rows' median, scored on the same rows.
+    rows = episode(7, 70).command
+    median = np.median(rows, axis=0)
+    assert summary["constant"]["command"] == [round(float(c), 4) for c in median]
+    assert abs(summary["constant"]["error"] - float(np.sqrt(((rows - median) ** 2).sum(axis=1)).mean())) < 1e-6
+    assert summary["forward"]["step"] == 2 and summary["forward"]["median_ms"] > 0
