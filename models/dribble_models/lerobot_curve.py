@@ -159,9 +159,20 @@ def forward_ms(model: Path, episode: Episode, rows: int = 60, warm_up: int = 10)
 
 def validation_error(model: Path, episodes: list[Episode]) -> dict:
     """dribble's validation error of a LeRobot checkpoint on `episodes`."""
-    errors = [row_errors(commands(model, e), e.command) for e in episodes]
+    sent = [commands(model, e) for e in episodes]
+    errors = [row_errors(c, e.command) for c, e in zip(sent, episodes)]
     every = np.concatenate(errors)
-    return {"error": float(every.mean()), "rows": int(len(every)), "episodes": {e.seed: float(r.mean()) for e, r in zip(episodes, errors)}}
+    # How much its commands vary from row to row beside the teacher's: a policy that does not
+    # yet read its images sends nearly the same command everywhere.
+    spread = np.concatenate(sent).std(axis=0)
+    teacher = np.concatenate([e.command for e in episodes]).std(axis=0)
+    return {
+        "error": float(every.mean()),
+        "rows": int(len(every)),
+        "episodes": {e.seed: float(r.mean()) for e, r in zip(episodes, errors)},
+        "command_spread": [round(float(v), 4) for v in spread],
+        "teacher_spread": [round(float(v), 4) for v in teacher],
+    }
 
 
 def reference_error(policy: Path, episodes: list[Episode], seeds: list[int]) -> dict:

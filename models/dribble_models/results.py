@@ -276,10 +276,11 @@ def lerobot_curves(directory: Path) -> str:
     `models/lerobot/curve-*.json` (`scripts/lerobot curve`), its training (steps, samples,
     epochs, LeRobot's loss at the start and the end, seconds a step) and the validation error
     of its checkpoints beside one constant command's and the shipped model's on the same
-    held-out rows, and the time one command takes."""
+    held-out rows, how much the last checkpoint's forward, left and turn commands vary over
+    those rows against the teacher's (standard deviations), and the time one command takes."""
     lines = [
-        "| run | steps (batch) | epochs | seconds a step | training loss, first and last logged | validation error by checkpoint | best | one constant command | shipped model on the same rows | a command (one thread) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| run | steps (batch) | epochs | seconds a step | training loss, first and last logged | validation error by checkpoint | best | its commands' spread at the last (the teacher's) | one constant command | shipped model on the same rows | a command (one thread) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for path in sorted(directory.glob("curve-*.json")):
         curve = read(path)
@@ -293,13 +294,16 @@ def lerobot_curves(directory: Path) -> str:
         best = min(points, key=lambda p: p["error"])
         reference = curve.get("reference")
         shipped = f"{reference['policy']}: {reference['error']:.3f}" if reference else "-"
+        spread = "-"
+        if "command_spread" in points[-1]:
+            spread = ", ".join(f"{a:.2f} ({b:.2f})" for a, b in zip(points[-1]["command_spread"], points[-1]["teacher_spread"]))
         constant = curve.get("constant")
         steady = f"{constant['error']:.3f}" if constant else "-"
         forward = curve.get("forward")
         timed = f"{forward['median_ms']:.0f} ms (p90 {forward['p90_ms']:.0f})" if forward else "-"
         lines.append(
             f"| {path.stem.removeprefix('curve-')} | {last['step']} ({curve.get('batch_size') or '?'}) | {last['epoch']:.2f} | "
-            f"{seconds:.2f} | {losses} | {errors} | {best['error']:.3f} (step {best['step']}) | {steady} | {shipped} | {timed} |"
+            f"{seconds:.2f} | {losses} | {errors} | {best['error']:.3f} (step {best['step']}) | {spread} | {steady} | {shipped} | {timed} |"
         )
     return "\n".join(lines)
 

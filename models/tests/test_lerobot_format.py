@@ -228,6 +228,8 @@ def test_the_curves_commands_are_what_lerobots_select_action_sends(tmp_path):
     summary = json.loads(curve.read_text())
     (point,) = summary["checkpoints"]
     assert point["step"] == 2 and point["rows"] == 70 and 0.0 < point["error"] < 2 * np.sqrt(3)
+    assert point["teacher_spread"] == [round(float(v), 4) for v in episode(7, 70).command.std(axis=0)]
+    assert len(point["command_spread"]) == 3 and min(point["command_spread"]) >= 0.0
     # One constant command, the training rows' median, scored on the same rows.
     rows = episode(7, 70).command
     median = np.median(rows, axis=0)

@@ -243,12 +243,12 @@ def test_a_lerobot_learning_curve_is_a_row_with_its_best_checkpoint(tmp_path):
     from dribble_models.results import ReadmeError, lerobot_curves
 
     log = [{"step": 100, "samples": 800, "epoch": 0.02, "loss": 0.9, "update_s": 1.0}, {"step": 900, "samples": 7200, "epoch": 0.2, "loss": 0.3, "update_s": 3.0}]
-    points = [{"step": 500, "error": 0.31}, {"step": 1000, "error": 0.27}, {"step": 1500, "error": 0.29}]
+    points = [{"step": 500, "error": 0.31}, {"step": 1000, "error": 0.27}, {"step": 1500, "error": 0.29, "command_spread": [0.01, 0.02, 0.03], "teacher_spread": [0.3, 0.4, 0.5]}]
     curve = {"batch_size": 8, "training": log, "checkpoints": points, "reference": {"policy": "host", "error": 0.123}, "constant": {"error": 0.307}, "forward": {"median_ms": 48.3, "p90_ms": 61.0}}
     (tmp_path / "curve-act.json").write_text(json.dumps(curve))
     row = lerobot_curves(tmp_path).splitlines()[-1]
     assert row.startswith("| act | 900 (8) | 0.20 | 2.00 | 0.900 (step 100), 0.300 (step 900) | 500: 0.310, 1000: 0.270, 1500: 0.290 |")
-    assert row.endswith("| 0.270 (step 1000) | 0.307 | host: 0.123 | 48 ms (p90 61) |")
+    assert row.endswith("| 0.270 (step 1000) | 0.01 (0.30), 0.02 (0.40), 0.03 (0.50) | 0.307 | host: 0.123 | 48 ms (p90 61) |")
     (tmp_path / "curve-act.json").write_text(json.dumps({**curve, "checkpoints": []}))
     with pytest.raises(ReadmeError, match="no checkpoint scored"):
         lerobot_curves(tmp_path)
