@@ -204,7 +204,7 @@ def plot(summary: dict, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, loss_axis = plt.subplots(figsize=(7.5, 4.2))
+    figure, loss_axis = plt.subplots(figsize=(7.5, 4.8))
     log = summary["training"]
     if log:
         loss_axis.plot([s["step"] for s in log], [s["loss"] for s in log], color="tab:blue", alpha=0.6, label="training loss (LeRobot's)")
@@ -224,9 +224,9 @@ def plot(summary: dict, out: Path) -> None:
     error_axis.set_ylim(bottom=0)
     handles = loss_axis.get_legend_handles_labels()[0] + error_axis.get_legend_handles_labels()[0]
     labels = loss_axis.get_legend_handles_labels()[1] + error_axis.get_legend_handles_labels()[1]
-    loss_axis.legend(handles, labels, loc="upper right", fontsize=8)
+    figure.legend(handles, labels, loc="lower center", ncol=2, fontsize=8, frameon=False)
     loss_axis.set_title(summary["title"], fontsize=9)
-    figure.tight_layout()
+    figure.tight_layout(rect=(0, 0.11, 1, 1))
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=110)
     plt.close(figure)
