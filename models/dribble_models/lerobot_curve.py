@@ -62,20 +62,28 @@ def count(text: str) -> int:
 
 #: The trainer's progress bar (`Training:  25%|...| 10/40 [...]`): the exact step, where the
 #: log line itself rounds it ("step:1K" from 1,000 to 1,499).
-PROGRESS = re.compile(r"\| *(?P<step>[0-9]+)/[0-9]+ \[")
+PROGRESS = re.compile(r"\| *(?P<step>[0-9]+)/(?P<total>[0-9]+) \[")
+#: What the trainer logs at each start: the run's whole length. A resumed run's bar counts the
+#: steps left (`50/16500` at step 3,550 of 20,000).
+CONFIGURED_STEPS = re.compile(r"cfg\.steps=(?P<steps>[0-9]+)")
 
 
 def training_log(log: Path) -> list[dict]:
     """The trainer's logged steps, in order; a resumed run's repeated steps keep the last.
-    A line's step is that of the progress bar drawn on the same line before it, else the
-    line's own rounded one."""
+    A line's step is that of the progress bar drawn on the same line before it (past the
+    steps a resumed run had done before its start), else the line's own rounded one."""
     text = log.read_text(errors="replace")
     steps: dict[int, dict] = {}
     for found in LOG_LINE.finditer(text):
         # The bar LeRobot drew on the same line (tqdm redraws with carriage returns).
         line_start = text.rfind("\n", 0, found.start()) + 1
         bars = list(PROGRESS.finditer(text, line_start, found.start()))
-        step = int(bars[-1]["step"]) if bars else count(found["step"])
+        if bars:
+            starts = list(CONFIGURED_STEPS.finditer(text, 0, found.start()))
+            configured = int(starts[-1]["steps"]) if starts else int(bars[-1]["total"])
+            step = int(bars[-1]["step"]) + configured - int(bars[-1]["total"])
+        else:
+            step = count(found["step"])
         steps[step] = {
             "step": step,
             "samples": count(found["samples"]),

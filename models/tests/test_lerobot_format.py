@@ -144,15 +144,19 @@ def test_lerobots_eval_policy_plays_a_policy_lerobot_saved(tmp_path):
 
 
 TRAINER_LOG = (
+    "INFO 2026-11-30 15:06:38 ot_train.py:332 cfg.steps=20000 (20K)\n"
     "Training:   2%|▎         | 499/20000 [00:03<02:14,  3.44s/step]Training:   2%|▎         | 500/20000 [00:03<02:14,  3.44s/step]"
     "INFO 2026-11-30 15:07:02 ot_train.py:435 step:500 smpl:4K ep:5 epch:0.13 loss:0.717 grdn:102.684 lr:1.0e-05 updt_s:2.194 data_s:0.117\n"
     "Training:   5%|▌         | 1000/20000 [00:05<01:35,  2.52s/step]"
     "INFO 2026-11-30 15:07:23 ot_train.py:435 step:1K smpl:8K ep:10 epch:0.26 loss:0.644 grdn:70.893 lr:1.0e-04 updt_s:2.140 data_s:0.022\n"
     "Training:   5%|▌         | 1050/20000 [00:05<01:35,  2.52s/step]"
     "INFO 2026-11-30 15:07:43 ot_train.py:435 step:1K smpl:8K ep:10 epch:0.27 loss:0.600 grdn:60.0 lr:1.0e-04 updt_s:2.0 data_s:0.02\n"
-    "scripts/lerobot: resuming run from its last checkpoint\n"
-    "Training:   5%|▌         | 1000/20000 [00:05<01:35,  2.52s/step]"
+    # Resumed from the checkpoint of step 1000: the bar counts the 19,000 steps left.
+    "INFO 2026-11-30 16:00:00 ot_train.py:332 cfg.steps=20000 (20K)\n"
+    "Training:   0%|          | 0/19000 [00:05<01:35,  2.52s/step]"
     "INFO 2026-11-30 16:07:23 ot_train.py:435 step:1K smpl:8K ep:10 epch:0.26 loss:0.641 grdn:70.0 lr:1.0e-04 updt_s:1.9 data_s:0.02\n"
+    "Training:   0%|          | 100/19000 [00:05<01:35,  2.52s/step]"
+    "INFO 2026-11-30 16:09:23 ot_train.py:435 step:1K smpl:9K ep:11 epch:0.29 loss:0.55 grdn:60.0 lr:1.0e-04 updt_s:1.9 data_s:0.02\n"
     # A log without the progress bar before a line: the line's own (rounded) step.
     "INFO 2026-11-30 16:17:23 ot_train.py:435 step:1.5K smpl:12K ep:15 epch:0.39 loss:0.5 grdn:40.0 lr:1.0e-04 updt_s:1.8 data_s:0.02\n"
 )
@@ -164,8 +168,8 @@ def test_the_trainers_log_reads_as_steps_and_a_resumed_step_keeps_its_last_line(
     log = tmp_path / "run.log"
     log.write_text(TRAINER_LOG)
     steps = lerobot_curve.training_log(log)
-    assert [s["step"] for s in steps] == [500, 1000, 1050, 1500]
-    assert [s["samples"] for s in steps] == [4000, 8000, 8000, 12000]
+    assert [s["step"] for s in steps] == [500, 1000, 1050, 1100, 1500]
+    assert [s["samples"] for s in steps] == [4000, 8000, 8000, 9000, 12000]
     assert steps[1]["loss"] == 0.641 and steps[2]["loss"] == 0.6 and steps[1]["lr"] == 1e-4 and steps[0]["update_s"] == 2.194
 
 
