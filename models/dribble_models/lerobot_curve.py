@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import statistics
 import sys
 import time
 import tomllib
@@ -107,31 +108,35 @@ def checkpoints(run: Path) -> list[tuple[int, Path]]:
 
 
 def batch_of(episode: Episode, rows: slice) -> dict:
-    """Rows of an episode as LeRobot's environment wrapper hands them to the preprocessor:
-    the thumbnails' luma in three equal channels, float in [0, 1], and the exports' two-zero
-    state."""
-
+    """Rows of an episode as LeRobot's environment wrapper (`lerobot_eval.LeRobotObservations`)
+    hands them to the preprocessor: the thumbnails' luma in three equal channels, float in
+    [0, 1], and the exports' two-zero state."""
     import torch
+
+    from .lerobot_eval import BOTTOM, STATE, STATE_SIZE, TOP
 
     def image(frames: np.ndarray):
         values = torch.from_numpy(frames[rows].astype(np.float32) / 255.0)
         return values[:, None].expand(-1, 3, -1, -1).contiguous()
 
     top = image(episode.top)
-    return {
-        "observation.images.top": top,
-        "observation.images.bottom": image(episode.bottom),
-        "observation.state": torch.zeros(top.shape[0], 2),
-    }
+    return {TOP: top, BOTTOM: image(episode.bottom), STATE: torch.zeros(top.shape[0], STATE_SIZE)}
 
 
-def commands(model: Path, episode: Episode) -> np.ndarray:
-    """The command a LeRobot checkpoint sends on each row of `episode` (the first of its chunk)."""
-    import torch
-
+def loaded(model: Path) -> tuple:
+    """A checkpoint's (policy, preprocessor, postprocessor), on the CPU, as `scripts/lerobot
+    eval` plays it."""
     from .lerobot_eval import policy_and_processors
 
     policy, preprocessor, postprocessor, _ = policy_and_processors(model)
+    return policy, preprocessor, postprocessor
+
+
+def commands(checkpoint: tuple, episode: Episode) -> np.ndarray:
+    """The command a `loaded` checkpoint sends on each row of `episode` (the first of its chunk)."""
+    import torch
+
+    policy, preprocessor, postprocessor = checkpoint
     sent = []
     with torch.no_grad():
         for start in range(0, len(episode.command), ROWS_PER_BATCH):
@@ -145,14 +150,10 @@ def forward_ms(model: Path, episode: Episode, rows: int = 60, warm_up: int = 10)
     """One command as the closed loop asks for it (a reset, LeRobot's `select_action` on one
     row through the saved processors), on one thread: the median and the 90th percentile over
     `rows` rows after `warm_up`, milliseconds. Beside it the robot's tick is about 2 ms."""
-    import statistics
-
     import torch
 
-    from .lerobot_eval import policy_and_processors
-
     torch.set_num_threads(1)
-    policy, preprocessor, postprocessor, _ = policy_and_processors(model)
+    policy, preprocessor, postprocessor = loaded(model)
     times = []
     with torch.no_grad():
         for row in range(min(rows + warm_up, len(episode.command))):
@@ -167,7 +168,8 @@ def forward_ms(model: Path, episode: Episode, rows: int = 60, warm_up: int = 10)
 
 def validation_error(model: Path, episodes: list[Episode]) -> dict:
     """dribble's validation error of a LeRobot checkpoint on `episodes`."""
-    sent = [commands(model, e) for e in episodes]
+    checkpoint = loaded(model)
+    sent = [commands(checkpoint, e) for e in episodes]
     errors = [row_errors(c, e.command) for c, e in zip(sent, episodes)]
     every = np.concatenate(errors)
     # How much its commands vary from row to row beside the teacher's: a policy that does not

@@ -194,7 +194,7 @@ from dribble_models.lerobot_eval import policy_and_processors
 
 model, dataset = Path(sys.argv[1]), Path(sys.argv[2])
 (episode,) = load(dataset).episodes
-batched = lerobot_curve.commands(model, episode)
+batched = lerobot_curve.commands(lerobot_curve.loaded(model), episode)
 policy, preprocessor, postprocessor, _ = policy_and_processors(model)
 one_by_one = []
 with torch.no_grad():
