@@ -136,6 +136,32 @@ class ModalCNN(nn.Module):
         self.hypotheses = nn.Linear(128, 3 * modes)
         self.choice = nn.Linear(128, modes)
 
+    @staticmethod
+    def widened(cnn: CNN, modes: int = 2, spread: float = 0.5, component: int = 1) -> "ModalCNN":
+        """A ModalCNN that starts as `cnn`: its features and hidden layer, each hypothesis
+        `cnn`'s output with `component` of the command (1: sideways) moved by a share of
+        `spread` (the shares, -1..1 evenly, sum to zero), and a choice of zero weights.
+        The choice ties, so the network sends the hypotheses' mean, `cnn`'s command, until
+        it learns; the offsets break the hypotheses' symmetry along the component where the
+        teacher's two answers differ (its detour around the ball goes left or right), so
+        winner-takes-all gives each side its own hypothesis from the first batch."""
+        if modes < 2:
+            raise ValueError("a widened head has two hypotheses or more")
+        model = ModalCNN(modes, cnn.features.filters)
+        model.features.load_state_dict(cnn.features.state_dict())
+        model.trunk.load_state_dict(cnn.head[:2].state_dict())
+        last = cnn.head[2]
+        offsets = torch.linspace(spread, -spread, modes)
+        with torch.no_grad():
+            model.hypotheses.weight.copy_(last.weight.repeat(modes, 1))
+            bias = last.bias.repeat(modes, 1)
+            bias[:, component] += offsets
+            model.hypotheses.bias.copy_(bias.reshape(-1))
+            model.choice.weight.zero_()
+            model.choice.bias.zero_()
+        model.features.standardise_input = cnn.features.standardise_input
+        return model
+
     def forward_all(self, top: torch.Tensor, bottom: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(hypotheses [B,modes,3], choice logits [B,modes])."""
         hidden = self.trunk(self.features(top, bottom))

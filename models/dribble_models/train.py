@@ -76,7 +76,7 @@ from .command_metric import row_errors, sent_commands
 from .manifest import Lineage, ModelReference, TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
 from .one_way_detour import OneWayDetour
-from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of
+from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of, shipped_initializers
 from .stalls import CutReport, StallRule, cut_all
 
 SCALE = np.float32(contract.INPUT_SCALE)
@@ -562,8 +562,8 @@ class Training:
             print(f"one-way detour: {int(detour.sum())} of {len(detour)} training rows relabelled", file=sys.stderr)
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
         if args.distill_from is not None:
-            if self.kind != "cnn" or args.modes != 1:
-                raise DatasetError("--distill-from trains a one-output CNN (--kind cnn, --modes 1)")
+            if self.kind != "cnn":
+                raise DatasetError("--distill-from trains a CNN (--kind cnn)")
             distilled = np.concatenate(distilled_labels(args, self.train_episodes, self.device))
             if args.one_way_detour:
                 distilled = np.where(detour[:, None], self.rows.command, distilled)
@@ -584,6 +584,7 @@ class Training:
             self.model = HCNN(centroids)
             self.clusters = nearest(features, self.model.centroids)
         self.folded_start = False
+        self.widened_start = False
         if args.init_from is not None:
             self.start_from(args.init_from)
             if args.standardise_input and not standardises(self.model) and self.rows is not None:
@@ -616,29 +617,55 @@ class Training:
         self.wall_s = 0.0
 
     def start_from(self, path: Path) -> None:
-        """Takes the kept (best) weights of another run's checkpoint, or a shipped model's, as the start."""
+        """Takes the kept (best) weights of another run's checkpoint, or a shipped model's, as the start.
+
+        A CNN with command hypotheses may start from a one-output CNN: its head is widened
+        (`ModalCNN.widened`), so the run begins with the start's commands."""
+        if isinstance(self.model, ModalCNN) and self.starts_one_output(path):
+            one = CNN(self.args.filters)
+            self.load_start(one, path, modes=1)
+            self.model = ModalCNN.widened(one, self.args.modes)
+            self.widened_start = True
+            return
+        self.load_start(self.model, path, modes=self.args.modes)
+
+    def starts_one_output(self, path: Path) -> bool:
+        """Whether the start at `path` is a one-output CNN (a shipped model or a checkpoint)."""
         if is_shipped_model(path):
             try:
-                load_shipped_weights(self.model, path, self.kind)
+                _, initializers = shipped_initializers(path, self.kind)
+            except ShippedWeightsError as error:
+                raise DatasetError(f"--init-from: {error}") from error
+            return "head.2.weight" in initializers
+        if not Path(path).is_file():
+            raise DatasetError(f"--init-from {path}: no such checkpoint")
+        identity = torch.load(path, weights_only=False, map_location="cpu")["identity"]
+        return identity["kind"] == "cnn" and identity.get("modes", 1) == 1
+
+    def load_start(self, model: nn.Module, path: Path, modes: int) -> None:
+        """Loads the start at `path` into `model` (of `modes` hypotheses), or refuses it."""
+        if is_shipped_model(path):
+            try:
+                load_shipped_weights(model, path, self.kind)
             except ShippedWeightsError as error:
                 raise DatasetError(f"--init-from: {error}") from error
             return
         if not Path(path).is_file():
             raise DatasetError(f"--init-from {path}: no such checkpoint")
         state = torch.load(path, weights_only=False, map_location="cpu")
-        if state["identity"]["kind"] != self.kind or state["identity"].get("modes", 1) != self.args.modes:
+        if state["identity"]["kind"] != self.kind or state["identity"].get("modes", 1) != modes:
             raise DatasetError(
                 f"--init-from {path} is a {state['identity']['kind']} with {state['identity'].get('modes', 1)} command "
-                f"hypotheses; this run trains a {self.kind} with {self.args.modes}"
+                f"hypotheses; this run trains a {self.kind} with {modes}"
             )
         filters = state["identity"].get("filters", PAPER_FILTERS.text())
         if filters != self.args.filters.text():
             raise DatasetError(f"--init-from {path} has the filters {filters}; this run trains {self.args.filters.text()}")
         if state["centroids"] is not None:
             # The H-CNN keeps the gate it was trained with.
-            self.model = HCNN(state["centroids"])
+            model = self.model = HCNN(state["centroids"])
             self.clusters = nearest(gating_features(self.rows.top, self.rows.bottom), self.model.centroids)
-        self.model.load_state_dict(state["best"]["state"] if state["best"]["state"] is not None else state["model"])
+        model.load_state_dict(state["best"]["state"] if state["best"]["state"] is not None else state["model"])
 
     # -- checkpoints ---------------------------------------------------------------------
 
@@ -975,6 +1002,11 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
         parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:
         parts.append(f"started from the kept weights of {args.init_from} (sha256 {start_sha256(args.init_from)[:12]})")
+        if args.modes > 1:
+            parts.append(
+                "a one-output start's head widened to the hypotheses (ModalCNN.widened: each its command, sideways moved "
+                "by +-0.5 between them, the choice tied: it begins with the start's commands)"
+            )
     if args.prune_from is not None:
         parts.append(f"started from {args.prune_from} (sha256 {start_sha256(args.prune_from)[:12]}) pruned to these filters, largest L1 norms kept")
     if args.distill_from is not None:

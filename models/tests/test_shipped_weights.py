@@ -98,6 +98,37 @@ def test_training_starts_from_a_shipped_model_and_refuses_one_it_cannot_take(tmp
     assert not (tmp_path / "out2" / "policy.toml").exists()
 
 
+def test_a_modal_run_starts_from_a_one_output_cnn_with_its_commands(tmp_path, rng):
+    from test_train import write_dataset
+
+    train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
+    torch.manual_seed(6)
+    shipped = CNN().eval()
+    export_policy(shipped, tmp_path / "shipped", RECORD)
+    top, bottom = to_network_input(rng.integers(0, 256, (4, 120, 160), dtype=np.uint8), rng.integers(0, 256, (4, 60, 80), dtype=np.uint8))
+    widened = ModalCNN.widened(shipped, 2).eval()
+    with torch.no_grad():
+        hypotheses, logits = widened.forward_all(top, bottom)
+        expected = shipped(top, bottom)
+        # Each hypothesis is the start's command moved sideways (+0.5, -0.5), the choice tied,
+        # so the network sends the start's command.
+        assert torch.allclose(hypotheses[:, 0] - expected, torch.tensor([0.0, 0.5, 0.0]), atol=1e-5)
+        assert torch.allclose(hypotheses[:, 1] - expected, torch.tensor([0.0, -0.5, 0.0]), atol=1e-5)
+        assert torch.equal(logits, torch.zeros_like(logits))
+        assert torch.allclose(widened(top, bottom), expected, atol=1e-5)
+    # The trainer takes the same start: with a learning rate of 0 the exported two-hypothesis
+    # network still answers as the one-output start.
+    common = ["--kind", "cnn", "--modes", "2", "--dataset", str(train), "--epochs", "1", "--threads", "1",
+              "--validation-episodes", "1", "--batch-size", "4", "--lr", "0"]
+    assert train_main(common + ["--out", str(tmp_path / "out"), "--init-from", str(tmp_path / "shipped"),
+                                "--checkpoint-dir", str(tmp_path / "ck")]) == 0
+    kept = ModalCNN(2)
+    load_shipped_weights(kept, tmp_path / "out", "cnn")
+    with torch.no_grad():
+        assert torch.allclose(kept.eval()(top, bottom), expected, atol=1e-5)
+    assert "head widened to the hypotheses" in (tmp_path / "out" / "policy.toml").read_text()
+
+
 def silenced(model: CNN, branch: str, layer: int, filters: list[int]) -> None:
     """Zeroes the given filters of one convolution and their bias: their outputs are 0 after ReLU."""
     with torch.no_grad():
