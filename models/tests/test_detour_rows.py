@@ -1,0 +1,59 @@
+"""The offline look at the teacher's detour rows (dribble_models.detour_rows)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from dribble_models import detour_rows
+from dribble_models.dataset import Episode
+from dribble_models.one_way_detour import APPROACH, OneWayDetour
+
+
+def episode_at(poses: np.ndarray, ball: np.ndarray, seed: int = 54) -> Episode:
+    """An approach episode whose commands are the teacher's two-way approach at each pose."""
+    rule = OneWayDetour()
+    commands = np.array([rule.command(p, ball, 1.0, one_way=False)[0] for p in poses], np.float32)
+    n = len(poses)
+    return Episode(
+        seed=seed,
+        top=np.zeros((n, 120, 160), np.uint8),
+        bottom=np.zeros((n, 60, 80), np.uint8),
+        command=commands,
+        phase=np.full(n, APPROACH, np.uint8),
+        robot_pose=poses.astype(np.float32),
+        ball=np.tile(ball.astype(np.float32), (n, 1)),
+    )
+
+
+def test_the_goal_bearing_is_measured_from_the_robots_heading():
+    # The robot at the centre spot facing +x: the +x goal dead ahead; facing +y: 90 degrees right.
+    ball = np.array([0.5, 0.0])
+    poses = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, math.pi / 2]])
+    bearings = detour_rows.goal_bearings(episode_at(poses, ball), np.arange(2))
+    assert bearings == pytest.approx([0.0, -math.pi / 2], abs=1e-6)
+
+
+def test_only_detour_rows_with_the_goal_out_of_view_are_kept():
+    ball = np.array([1.0, 0.0])
+    poses = np.array([
+        [1.0, -0.3, math.pi / 2],  # beside the ball facing a sideline: a detour, the goal out of view
+        [1.6, 0.0, math.pi],  # on the ball's goal side facing it: a detour, the goal behind
+        [-2.0, 0.0, 0.0],  # far behind the ball: no detour
+    ])
+    (_, rows), = detour_rows.aliased_rows([episode_at(poses, ball)])
+    assert list(rows) == [0, 1]
+
+
+def test_sideways_figures_count_steps_each_way_and_stands():
+    teacher = np.array([[0.0, 0.6, 0.2], [0.0, -0.6, 0.2], [0.0, 0.6, 0.0], [0.0, 0.5, 0.0]], np.float32)
+    sent = np.array([[0.0, 0.5, 0.2], [0.0, 0.4, 0.2], [0.0, 0.0, 0.0], [0.1, 0.1, 0.3]], np.float32)
+    b = detour_rows.behaviour(sent, teacher)
+    assert b["teachers_way"] == 0.25 and b["other_way"] == 0.25 and b["stands"] == 0.25
+    assert b["sideways_size"] == pytest.approx(0.25)
+    assert b["teacher_sideways_size"] == pytest.approx(0.575)
+
+
+def test_reserved_seeds_are_refused(tmp_path, capsys):
+    assert detour_rows.main(["--dataset", str(tmp_path), "--seeds", "20000..20002", "models/policy/cnn"]) == 2
+    assert "20000" in capsys.readouterr().err
