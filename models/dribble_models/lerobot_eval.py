@@ -241,14 +241,18 @@ def is_lerobot_checkpoint(model: Path) -> bool:
     return (model / "config.json").is_file() and (model / "model.safetensors").is_file()
 
 
-def policy_and_processors(model: Path):
+def policy_and_processors(model: Path, action_steps: int | None = None):
     """The policy at `model` with the processors it plays through: a shipped dribble model's
     ONNX network with none (its normalisation is the manifest's, inside the policy), or a
-    LeRobot checkpoint with the pre- and post-processors saved beside it."""
+    LeRobot checkpoint with the pre- and post-processors saved beside it. `action_steps`
+    sets a chunking policy's `n_action_steps`: how many commands of each predicted chunk it
+    sends before it runs again (ACT as its authors run it sends the whole chunk)."""
     from lerobot.processor import PolicyProcessorPipeline
     from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
 
     if not is_lerobot_checkpoint(model):
+        if action_steps is not None:
+            raise ValueError(f"--action-steps is for a LeRobot policy that predicts chunks; {model} sends one command a step")
         identity = PolicyProcessorPipeline(steps=[])
         actions = PolicyProcessorPipeline(steps=[], to_transition=policy_action_to_transition, to_output=transition_to_policy_action)
         return DribbleOnnxPolicy(DribbleOnnxConfig(model=str(model))), identity, actions, "onnxruntime"
@@ -256,6 +260,11 @@ def policy_and_processors(model: Path):
 
     config = PreTrainedConfig.from_pretrained(model)
     config.device = "cpu"
+    if action_steps is not None:
+        chunk = getattr(config, "chunk_size", None)
+        if chunk is None or not 1 <= action_steps <= chunk:
+            raise ValueError(f"--action-steps {action_steps}: {model} predicts chunks of {chunk} commands")
+        config.n_action_steps = action_steps
     policy = get_policy_class(config.type).from_pretrained(model, config=config)
     policy.eval()
     preprocessor, postprocessor = make_pre_post_processors(
@@ -264,14 +273,14 @@ def policy_and_processors(model: Path):
     return policy, preprocessor, postprocessor, f"LeRobot {config.type}"
 
 
-def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 90.0) -> dict:
+def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 90.0, action_steps: int | None = None) -> dict:
     """LeRobot's `make_env` and `eval_policy` on `seeds`, one episode at a time."""
     from lerobot.envs.factory import make_env
     from lerobot.processor import PolicyProcessorPipeline
     from lerobot.scripts.lerobot_eval import eval_policy
 
     register()
-    policy, preprocessor, postprocessor, runner = policy_and_processors(model)
+    policy, preprocessor, postprocessor, runner = policy_and_processors(model, action_steps)
     config = DribbleEnv(conditions=conditions, time_limit_s=time_limit_s)
     environments = make_env(config, n_envs=1)
     vector_env = environments["dribble"][0]
@@ -294,6 +303,7 @@ def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 9
         "policy": str(model),
         "conditions": conditions,
         "time_limit_s": time_limit_s,
+        **({"action_steps": action_steps} if action_steps is not None else {}),
         "seeds": f"{seeds.start}..{seeds.stop - 1}",
         "goals": goals,
         "episodes": len(episodes),
@@ -311,8 +321,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--condition", default="clean", help="as `dribble eval --condition` takes it")
     parser.add_argument("--time-limit", type=float, default=90.0, help="simulated seconds per episode (the paper's 90)")
     parser.add_argument("--out", type=Path, required=True, help="the summary (JSON)")
+    parser.add_argument("--action-steps", type=int, help="a LeRobot policy that predicts chunks (ACT): how many commands of each chunk it sends before it runs again, its n_action_steps (default the checkpoint's: 1 for scripts/lerobot train-act's, a reactive policy; the chunk's length runs it once a chunk, a tenth of the time for chunks of 10)")
     args = parser.parse_args(argv)
-    summary = evaluate(args.policy, args.seeds, args.condition, args.time_limit)
+    try:
+        summary = evaluate(args.policy, args.seeds, args.condition, args.time_limit, args.action_steps)
+    except ValueError as error:
+        print(f"scripts/lerobot eval: {error}", file=sys.stderr)
+        return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=1) + "\n")
     low, high = summary["interval"]

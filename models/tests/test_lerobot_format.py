@@ -133,14 +133,21 @@ def test_lerobots_eval_policy_plays_a_policy_lerobot_saved(tmp_path):
     out = tmp_path / "eval.json"
     played = subprocess.run(
         [str(REPOSITORY / "scripts" / "lerobot"), "eval", "--policy", str(checkpoint),
-         "--seeds", "10000..10001", "--time-limit", "1", "--out", str(out)],
+         "--seeds", "10000..10001", "--time-limit", "1", "--out", str(out), "--action-steps", "2"],
         capture_output=True, text=True,
     )  # fmt: skip
     assert played.returncode == 0, played.stderr[-2000:]
     summary = json.loads(out.read_text())
-    assert summary["path"].endswith("LeRobot act")
+    assert summary["path"].endswith("LeRobot act") and summary["action_steps"] == 2
     (episode,) = summary["per_episode"]
     assert episode["seed"] == 10000 and episode["duration_s"] <= 1.0 + 1e-6
+    # More commands a run than the chunk holds are refused, naming the chunk.
+    refused = subprocess.run(
+        [str(REPOSITORY / "scripts" / "lerobot"), "eval", "--policy", str(checkpoint),
+         "--seeds", "10000..10001", "--time-limit", "1", "--out", str(tmp_path / "no.json"), "--action-steps", "3"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert refused.returncode == 2 and "chunks of 2 commands" in refused.stderr, refused.stderr[-2000:]
 
 
 TRAINER_LOG = (
