@@ -57,3 +57,32 @@ def test_sideways_figures_count_steps_each_way_and_stands():
 def test_reserved_seeds_are_refused(tmp_path, capsys):
     assert detour_rows.main(["--dataset", str(tmp_path), "--seeds", "20000..20002", "models/policy/cnn"]) == 2
     assert "20000" in capsys.readouterr().err
+
+
+def test_stall_frames_shows_each_hypothesis_and_the_teachers_two_detours(tmp_path, rng):
+    """`stall_frames` runs a one-output and a two-hypothesis CNN on a window's thumbnails and
+    puts the teacher's detour for either goal beside them."""
+    import torch
+
+    from dribble_models import stall_frames
+    from dribble_models.export import export_policy
+    from dribble_models.manifest import TrainingRecord
+    from dribble_models.networks import CNN, ModalCNN
+
+    torch.manual_seed(3)
+    export_policy(CNN().eval(), tmp_path / "one", TrainingRecord(dataset="test", epochs=0))
+    export_policy(ModalCNN(2).eval(), tmp_path / "two", TrainingRecord(dataset="test", epochs=0))
+    window = stall_frames.Window(
+        seed=20016,
+        top=rng.integers(0, 256, (4, 120, 160), dtype=np.uint8),
+        bottom=rng.integers(0, 256, (4, 60, 80), dtype=np.uint8),
+        robot_pose=np.array([1.0, -0.3, math.pi / 2]),
+        ball=np.array([1.0, 0.0]),
+        first_ball=np.array([1.0, 0.0]),
+    )
+    target, other, detour = stall_frames.teacher_commands(window)
+    assert detour and target[1] * other[1] < 0  # beside the ball the two goals' detours step opposite ways
+    two = stall_frames.answers(tmp_path / "two", window)
+    assert len(two["hypotheses"]) == 2 and sum(share for _, share in two["hypotheses"]) == pytest.approx(1.0)
+    text = stall_frames.report(window, [tmp_path / "one", tmp_path / "two"])
+    assert "seed 20016, 4 frames" in text and "hypothesis 1:" in text and text.count("sends") == 2

@@ -32,8 +32,9 @@ CHANNELS = {
 
 
 @pytest.fixture(scope="module")
-def episode(tmp_path_factory):
-    """One 3-second expert episode (seed 10003), recorded with cameras, written as MCAP."""
+def recorded(tmp_path_factory) -> Path:
+    """One 3-second expert episode (seed 10003), recorded with cameras, written as MCAP into
+    `mcap/` beside its dataset in `dataset/`."""
     tmp = tmp_path_factory.mktemp("mcap")
     result = subprocess.run(
         [
@@ -45,6 +46,13 @@ def episode(tmp_path_factory):
         env={**os.environ, "XDG_RUNTIME_DIR": str(tmp)},
     )
     assert result.returncode == 0, result.stdout + result.stderr
+    return tmp
+
+
+@pytest.fixture(scope="module")
+def episode(recorded):
+    """The recorded episode's MCAP summary and messages, and its dataset's arrays."""
+    tmp = recorded
     files = sorted((tmp / "mcap").glob("*.mcap"))
     assert [f.name for f in files] == ["episode_10003.mcap"]
     with open(files[0], "rb") as stream:
@@ -256,3 +264,20 @@ def test_eval_live_serves_the_same_channels_over_foxglove_websocket(tmp_path):
     finally:
         process.kill()
         process.wait()
+
+
+def test_the_stall_frames_window_holds_the_thumbnails_and_poses_of_its_times(recorded):
+    """`dribble_models.stall_frames` reads a window of the file: the thumbnails the dataset
+    holds for those times, in pairs, and the poses at its middle."""
+    from dribble_models import stall_frames
+
+    dataset = dict(np.load(recorded / "dataset" / "episode_10003.npz"))
+    window = stall_frames.read_window(recorded / "mcap" / "episode_10003.mcap", 1.0, 2.0)
+    assert window.seed == 10003 and 25 <= len(window.top) == len(window.bottom) <= 35
+    rows = {row.tobytes() for row in dataset["top"]}
+    assert all(top.tobytes() in rows for top in window.top)
+    middle = np.argmin(np.abs(dataset["time_s"] - dataset["time_s"][0] - 1.5))
+    assert np.allclose(window.robot_pose[:2], dataset["robot_pose"][middle][:2], atol=0.05)
+    assert np.allclose(window.ball, dataset["ball"][middle], atol=0.05)
+    # A test seed's episode is for reporting: studying it is refused.
+    assert stall_frames.main([str(recorded / "mcap" / "episode_10003.mcap"), "models/policy/cnn", "--from", "1", "--to", "2"]) == 2
