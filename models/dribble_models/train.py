@@ -968,7 +968,7 @@ def added_description(directory: Path) -> str:
     return f"{directory.name} ({driven})"
 
 
-def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
+def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: bool = False, widened: bool = False) -> str:
     parts = [
         f"Adam lr {args.lr}",
         f"batch {args.batch_size}" if args.kind != "rcnn" else f"{args.lanes} lanes of {args.window}-step windows",
@@ -992,7 +992,7 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
         parts.append(f"camera conditions augmented on {args.camera_augment:.0%} of the rows (CameraAugment: exposure, contrast, vignetting, blur, noise{strength})")
     if args.standardise_input:
         parts.append("each thumbnail standardised on its own before the network ([normalisation] standardise)")
-        if args.init_from is not None:
+        if folded:
             parts.append("a start trained on pixel / 255 has its first layers re-expressed at the training rows' typical level and spread (fold_typical_level)")
     if args.balance_phases:
         parts.append("phase-balanced sampling")
@@ -1002,7 +1002,7 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None) -> str:
         parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
     if args.init_from is not None:
         parts.append(f"started from the kept weights of {args.init_from} (sha256 {start_sha256(args.init_from)[:12]})")
-        if args.modes > 1:
+        if widened:
             parts.append(
                 "a one-output start's head widened to the hypotheses (ModalCNN.widened: each its command, sideways moved "
                 "by +-0.5 between them, the choice tied: it begins with the start's commands)"
@@ -1212,7 +1212,7 @@ def main(argv: list[str] | None = None) -> int:
         train_error=scores["train"]["error"],
         validation_error=scores["validation"]["error"],
         test_error=scores["test"]["error"] if test else None,
-        notes=notes_of(args, device),
+        notes=notes_of(args, device, folded=training.folded_start, widened=training.widened_start),
     )
     training.model.to("cpu")  # exported and plotted from the CPU
     args.out.mkdir(parents=True, exist_ok=True)

@@ -127,6 +127,16 @@ def test_a_modal_run_starts_from_a_one_output_cnn_with_its_commands(tmp_path, rn
     with torch.no_grad():
         assert torch.allclose(kept.eval()(top, bottom), expected, atol=1e-5)
     assert "head widened to the hypotheses" in (tmp_path / "out" / "policy.toml").read_text()
+    # The notes say what the start went through: a `pixel / 255` start re-expressed for
+    # standardised input, a standardised two-hypothesis start neither re-expressed nor widened.
+    assert train_main(common + ["--out", str(tmp_path / "std"), "--init-from", str(tmp_path / "out"),
+                                "--standardise-input", "--checkpoint-dir", str(tmp_path / "ck2")]) == 0
+    notes = (tmp_path / "std" / "policy.toml").read_text()
+    assert "re-expressed" in notes and "widened" not in notes
+    assert train_main(common + ["--out", str(tmp_path / "again"), "--init-from", str(tmp_path / "std"),
+                                "--standardise-input", "--checkpoint-dir", str(tmp_path / "ck3")]) == 0
+    notes = (tmp_path / "again" / "policy.toml").read_text()
+    assert "re-expressed" not in notes and "widened" not in notes
 
 
 def silenced(model: CNN, branch: str, layer: int, filters: list[int]) -> None:
