@@ -144,7 +144,9 @@ class ModalCNN(nn.Module):
         The choice ties, so the network sends the hypotheses' mean, `cnn`'s command, until
         it learns; the offsets break the hypotheses' symmetry along the component where the
         teacher's two answers differ (its detour around the ball goes left or right), so
-        winner-takes-all gives each side its own hypothesis from the first batch."""
+        that winner-takes-all can give each side its own hypothesis. (On the host model's
+        recipe it split the commands into a main answer and a rare one instead:
+        docs/src/history/two-hypotheses-at-the-ball.md.)"""
         if modes < 2:
             raise ValueError("a widened head has two hypotheses or more")
         model = ModalCNN(modes, cnn.features.filters)
