@@ -32,7 +32,7 @@ import torch
 from . import contract
 from .networks import CNN, ModalCNN, set_standardise
 from .one_way_detour import OneWayDetour
-from .seed_ranges import FRESH, TEST
+from .seed_ranges import reserved_among
 from .shipped_weights import ShippedWeightsError, load_shipped_weights, shipped_initializers
 
 
@@ -113,9 +113,8 @@ def read_window(path: Path, start_s: float, end_s: float) -> Window:
 def refuse_reserved(seed: int) -> None:
     """Refuses an episode of the test or fresh seeds (reporting only); selection seeds are
     where failures are studied."""
-    for name, seeds in (("test", TEST), ("fresh", FRESH)):
-        if seed in seeds:
-            raise StallFramesError(f"seed {seed} is one of the {name} seeds: failures are studied on selection seeds")
+    for name in set(reserved_among([seed])) - {"selection"}:
+        raise StallFramesError(f"seed {seed} is one of the {name} seeds: failures are studied on selection seeds")
 
 
 def network_of(model: Path) -> tuple[torch.nn.Module, bool]:
