@@ -11,6 +11,13 @@ on the ball's starting side, as the episode protocol sets it) and the ball's dis
 that goal at the end, how far it turned, when it first saw the ball, and for an episode
 without a goal its failure class (FAILURE_CLASSES). Beside the episodes: the engine that
 ran the policy.
+
+    python -m dribble_models.eval_summary REST.json SUMMARY.json --joining FIRST.json
+
+joins a kept summary of the same policy, engine, conditions and camera samples on other
+seeds (the first 20 fresh seeds' committed summary, say, when their paths are no longer in
+the cache) to the episodes of REST.json: an episode is a function of its seed, its
+condition, the policy and the engine, so the first seeds need not be played again.
 """
 
 from __future__ import annotations
@@ -148,11 +155,35 @@ def summarise(trajectories: dict, seeds: range | None = None) -> dict:
     return summary
 
 
+#: What two summaries must share for their episodes to be one run's.
+RUN_IDENTITY = ("engine", "conditions", "camera_samples")
+
+
+def joined(first: dict, rest: dict) -> dict:
+    """One summary of the episodes of `first` and `rest`, by seed: runs of the same engine,
+    conditions and camera samples on seeds that do not overlap (else a ValueError)."""
+    for key in RUN_IDENTITY:
+        if first.get(key) != rest.get(key):
+            raise ValueError(f"the two runs differ in {key}: {first.get(key)!r} and {rest.get(key)!r}")
+    shared = sorted({e["seed"] for e in first["episodes"]} & {e["seed"] for e in rest["episodes"]})
+    if shared:
+        raise ValueError(f"both runs hold the seeds {shared[:5]}")
+    summary = dict(rest)
+    summary["episodes"] = sorted(first["episodes"] + rest["episodes"], key=lambda e: e["seed"])
+    return summary
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dribble_models.eval_summary", description=__doc__.split("\n\n")[0])
     parser.add_argument("trajectories", type=Path, help="the file `dribble eval --trajectories` wrote")
     parser.add_argument("summary", type=Path, help="where to write the summary (JSON)")
     parser.add_argument("--seeds", type=seed_range, metavar="A..B", help="only the episodes of these seeds (every one of them must be in the file)")
+    parser.add_argument(
+        "--joining",
+        type=Path,
+        metavar="SUMMARY",
+        help="a kept summary of the same policy, engine and conditions on other seeds: its episodes join these",
+    )
     args = parser.parse_args(argv)
     try:
         trajectories = json.loads(args.trajectories.read_text())
@@ -163,6 +194,12 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError, TypeError) as error:
         print(f"error: {args.trajectories} is not a `dribble eval --trajectories` file: {error}", file=sys.stderr)
         return 2
+    if args.joining is not None:
+        try:
+            summary = joined(json.loads(args.joining.read_text()), summary)
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            print(f"error: {args.joining} cannot join {args.trajectories}: {error}", file=sys.stderr)
+            return 2
     args.summary.write_text(json.dumps(summary, indent=1) + "\n")
     return 0
 
