@@ -351,6 +351,8 @@ def record_round(args: argparse.Namespace) -> int:
     from .gym_env import NaoDribbleEnv
 
     refuse_reserved(args.seeds, f"the round {args.out}")
+    if not 0.0 <= args.beta <= 1.0:
+        raise ValueError(f"--beta {args.beta} is not a probability (0 to 1)")
     torch.set_num_threads(1)
     driver = Driver(load_run(args.run))
     args.out.mkdir(parents=True, exist_ok=True)

@@ -107,3 +107,13 @@ def test_the_report_tables_each_run_with_its_interval_and_failures(tmp_path, cap
     assert "| clean | control | 20000..20002 | 1 / 3 " in text and "| clean | treatment | 20000..20002 | 2 / 3 " in text
     assert text.index("| clean | control") < text.index("| clean | treatment")
     assert pc.main(["report", str(tmp_path / "nothing")]) == 2
+
+
+def test_a_round_refuses_reserved_seeds_and_a_beta_that_is_no_probability(tmp_path, capsys):
+    # Both refusals come before the run is loaded or an environment started.
+    common = ["round", str(tmp_path / "absent.pt"), "--out", str(tmp_path / "round")]
+    assert pc.main([*common, "--seeds", "20000..20002"]) == 2
+    assert "selection seeds [20000, 20001]" in capsys.readouterr().err
+    assert pc.main([*common, "--seeds", "5000..5002", "--beta", "1.5"]) == 2
+    assert "not a probability" in capsys.readouterr().err
+    assert not (tmp_path / "round").exists()
