@@ -53,12 +53,11 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from . import contract
 from .cluster import seed_range
 from .command_metric import row_errors, sent_commands
 from .dataset import PHASES, DatasetError, Episode, load
 from .eval_summary import summarise_episode
-from .networks import CNN, CameraFeatures, set_standardise
+from .networks import CNN, CameraFeatures, set_standardise, to_network_input
 from .seed_ranges import refuse_reserved
 from .shipped_weights import load_shipped_weights
 
@@ -69,6 +68,9 @@ HIDDEN = 128
 class PreviousCommandCNN(nn.Module):
     """The CNN with the last command sent as a second input to its hidden layer:
     (top, bottom, previous [B,3]) -> command [B,3]."""
+
+    # A standardised start standardises inside its features (`CameraFeatures.standardise_input`),
+    # as in training, so every input is `pixel * INPUT_SCALE` (`networks.to_network_input`).
 
     def __init__(self, features: CameraFeatures) -> None:
         super().__init__()
@@ -112,15 +114,6 @@ def start_model(path: Path) -> CNN:
     return cnn
 
 
-def network_inputs(top_u8: np.ndarray, bottom_u8: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """u8 thumbnails [B,H,W] as `pixel * INPUT_SCALE` [B,1,H,W] f32: a standardised model
-    standardises inside its features (`CameraFeatures.standardise_input`), as in training."""
-    scale = np.float32(contract.INPUT_SCALE)
-    top = torch.from_numpy(top_u8[:, None].astype(np.float32) * scale)
-    bottom = torch.from_numpy(bottom_u8[:, None].astype(np.float32) * scale)
-    return top, bottom
-
-
 @torch.no_grad()
 def camera_features(features: CameraFeatures, episodes: list[Episode], chunk: int = 512) -> np.ndarray:
     """The fixed branches' features of every row of `episodes`, in order [N, F]."""
@@ -128,7 +121,7 @@ def camera_features(features: CameraFeatures, episodes: list[Episode], chunk: in
     out = []
     for episode in tqdm(episodes, desc="camera features", unit="episode", leave=False):
         for i in range(0, len(episode), chunk):
-            top, bottom = network_inputs(episode.top[i : i + chunk], episode.bottom[i : i + chunk])
+            top, bottom = to_network_input(episode.top[i : i + chunk], episode.bottom[i : i + chunk])
             out.append(features(top, bottom).numpy())
     return np.concatenate(out)
 
@@ -170,8 +163,9 @@ def train(args: argparse.Namespace) -> int:
     training_seeds, validation_seeds = split_validation(seeds, args.validation_episodes, args.seed)
     # (episode, the command executed before each of its rows): the teacher's own in a
     # demonstration, the recorded one in a round.
-    training = [(e, previous_commands(e.command)) for e in episodes if e.seed in set(training_seeds)]
-    validation = [(e, previous_commands(e.command)) for e in episodes if e.seed in set(validation_seeds)]
+    held = set(validation_seeds)
+    training = [(e, previous_commands(e.command)) for e in episodes if e.seed not in held]
+    validation = [(e, previous_commands(e.command)) for e in episodes if e.seed in held]
     for directory in args.round:
         added = round_episodes(directory)
         training += added
@@ -288,8 +282,8 @@ class Driver:
 
     @torch.no_grad()
     def __call__(self, observation: dict) -> np.ndarray:
-        top, bottom = network_inputs(observation["top"][None], observation["bottom"][None])
-        previous = torch.from_numpy((0.0 * self.previous if self.zero_previous else self.previous)[None])
+        top, bottom = to_network_input(observation["top"], observation["bottom"])
+        previous = torch.from_numpy((np.zeros_like(self.previous) if self.zero_previous else self.previous)[None])
         command = sent_commands(self.model(top, bottom, previous).numpy())[0]
         self.previous = command
         return command
