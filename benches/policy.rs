@@ -105,10 +105,7 @@ fn policies(c: &mut Criterion) {
             }
             group.bench_function(name, |b| {
                 b.iter(|| {
-                    let input = PolicyInput {
-                        top: black_box(&top),
-                        bottom: black_box(&bottom),
-                    };
+                    let input = PolicyInput::at_rest(black_box(&top), black_box(&bottom));
                     black_box(policy.step(input).expect("step"))
                 })
             });

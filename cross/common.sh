@@ -123,6 +123,10 @@ configure_target() {
             if [ "$(cat "$route_file" 2>/dev/null)" != source ] && ensure_i686_sysroot; then
                 echo debian-i386 >"$route_file"
                 export CARGO_TARGET_I686_UNKNOWN_LINUX_GNU_RUSTFLAGS="--sysroot $sysroot -C target-cpu=atom $STATIC"
+                # rustdoc reads none of the target's RUSTFLAGS: without the sysroot, the
+                # crate's doc-tests (run by `cargo test` with no target selection) find no
+                # i686 std. With --target given, cargo passes these to the target's crates only.
+                export RUSTDOCFLAGS="--sysroot $sysroot -C target-cpu=atom $STATIC"
             else
                 echo source >"$route_file"
                 use_std_from_source

@@ -83,7 +83,11 @@ fn run(
 ) -> Vec<PolicyOutput> {
     inputs
         .iter()
-        .map(|(top, bottom)| policy.step(PolicyInput { top, bottom }).expect("a command"))
+        .map(|(top, bottom)| {
+            policy
+                .step(PolicyInput::at_rest(top, bottom))
+                .expect("a command")
+        })
         .collect()
 }
 

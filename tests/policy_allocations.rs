@@ -73,10 +73,7 @@ fn per_step_allocations(kind: &str, engine: Engine) -> Vec<(u64, u64)> {
         pattern.paint(&mut bottom_frame, step as u64, time);
         downscale(&top_frame, &mut top);
         downscale(&bottom_frame, &mut bottom);
-        let input = PolicyInput {
-            top: &top,
-            bottom: &bottom,
-        };
+        let input = PolicyInput::at_rest(&top, &bottom);
         let mut result = None;
         let counted = count_allocations(|| result = Some(policy.step(input)));
         result.expect("stepped").expect("step succeeds");
@@ -112,7 +109,7 @@ fn report(kind: &str, engine: Engine) -> u64 {
 #[test]
 fn allocations_per_step_are_steady_and_the_tick_adds_none() {
     support::install_log_subscriber();
-    for kind in ["cnn", "hcnn", "rcnn", COMMITTED] {
+    for kind in ["cnn", "cnn-previous", "hcnn", "rcnn", COMMITTED] {
         assert_eq!(
             report(kind, Engine::Compiled),
             0,

@@ -98,7 +98,7 @@ fn the_engine_carries_the_recurrent_state_as_tract_does_over_a_whole_episode() {
             .iter()
             .map(|(top, bottom)| {
                 let out = tract
-                    .step(PolicyInput { top, bottom })
+                    .step(PolicyInput::at_rest(top, bottom))
                     .expect("tract steps");
                 [out.forward, out.left, out.turn]
             })
@@ -109,7 +109,7 @@ fn the_engine_carries_the_recurrent_state_as_tract_does_over_a_whole_episode() {
             let (mut worst, mut worst_step) = (0.0f32, 0);
             for (step, ((top, bottom), want)) in steps.iter().zip(&expected).enumerate() {
                 let out = compiled
-                    .step(PolicyInput { top, bottom })
+                    .step(PolicyInput::at_rest(top, bottom))
                     .unwrap_or_else(|error| panic!("step {step}: {error}"));
                 for (got, want) in [out.forward, out.left, out.turn].iter().zip(want) {
                     assert!(got.is_finite(), "step {step}");

@@ -220,9 +220,13 @@ impl<P: Policy, C: Clock> ControlLoop<P, C> {
         top_sequence: u64,
         bottom_sequence: u64,
     ) -> MotionCommand {
+        // The last command a tick published (a stop after a failed step or silent cameras,
+        // and from an episode's start until the first computed one). A watchdog stop is not
+        // a tick's: it changes nothing the next tick decides on.
         let input = PolicyInput {
             top: &self.top,
             bottom: &self.bottom,
+            previous: self.last_command.speed,
         };
         let output = match self.policy.step(input) {
             Ok(output) => output,
@@ -359,10 +363,13 @@ mod tests {
         outputs: Vec<Result<PolicyOutput, &'static str>>,
         steps: usize,
         resets: usize,
+        /// The last command each step was given.
+        previous: Vec<SpeedCommand>,
     }
 
     impl Policy for ScriptedPolicy {
-        fn step(&mut self, _: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+        fn step(&mut self, input: PolicyInput<'_>) -> Result<PolicyOutput, PolicyError> {
+            self.previous.push(input.previous);
             let output = self.outputs[self.steps % self.outputs.len()];
             self.steps += 1;
             output.map_err(|message| PolicyError::Inference(message.to_owned()))
@@ -440,6 +447,40 @@ mod tests {
         assert_eq!(computed.speed.forward(), 0.5);
         assert_eq!(rig.control.counters().camera_stops, 2);
         assert_eq!(rig.control.policy().steps, 1);
+    }
+
+    #[test]
+    fn each_step_is_given_the_command_published_last_clamped_a_stop_after_a_failure() {
+        let mut rig = Rig::new(ScriptedPolicy {
+            outputs: vec![
+                Ok(PolicyOutput {
+                    forward: 2.0,
+                    left: -0.5,
+                    turn: 0.25,
+                }),
+                Err("no answer"),
+                forward(0.5),
+                forward(0.75),
+            ],
+            ..Default::default()
+        });
+        for sequence in 0..3 {
+            rig.tick(Some(sequence), Some(sequence));
+        }
+        rig.control.reset_episode();
+        rig.tick(Some(3), Some(3));
+        let clamped = SpeedCommand::new(1.0, -0.5, 0.25).expect("finite");
+        assert_eq!(
+            rig.control.policy().previous,
+            [
+                SpeedCommand::STOP,
+                clamped,
+                SpeedCommand::STOP,
+                SpeedCommand::STOP
+            ],
+            "first step, then the clamped command, a stop after the failed step, a stop \
+             after the episode's reset (its last command was forward 0.5)"
+        );
     }
 
     #[test]

@@ -459,10 +459,7 @@ fn forward(
     let mut times = TickStats::new(budget);
     for _ in 0..steps {
         let start = Instant::now();
-        last = Some(policy.step(PolicyInput {
-            top: &top,
-            bottom: &bottom,
-        })?);
+        last = Some(policy.step(PolicyInput::at_rest(&top, &bottom))?);
         times.record(start.elapsed());
     }
     writeln!(
@@ -504,10 +501,7 @@ fn layer_passes(
 ) -> anyhow::Result<()> {
     let mut policy = load_learned_policy(manifest, options)?;
     let (top, bottom) = test_pattern_thumbnails();
-    policy.step(PolicyInput {
-        top: &top,
-        bottom: &bottom,
-    })?;
+    policy.step(PolicyInput::at_rest(&top, &bottom))?;
     let network = policy.compiled_cnn_mut().with_context(|| {
         format!(
             "{}: per-layer runs need a CNN policy that the compiled engine runs",

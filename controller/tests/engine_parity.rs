@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::manifest::{PolicyManifest, Precision};
 use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy};
-use dribble_controller::{BottomThumbnail, Policy, PolicyInput, TopThumbnail};
+use dribble_controller::{BottomThumbnail, Policy, PolicyInput, SpeedCommand, TopThumbnail};
 use prost::Message;
 use support::fixture;
 use tract_onnx::pb;
@@ -127,6 +127,11 @@ fn policies() -> Vec<PathBuf> {
         Ok(rows) => panic!("DRIBBLE_PARITY_ROWS={rows}: `robot` or unset (every row)"),
         Err(_) => false,
     };
+    if !only_robot {
+        // A CNN that reads the last command: the same kernels as the CNN fixture's, one more
+        // input into its dense layer; the robot package does not read it yet.
+        found.push(fixture("cnn-previous").join("policy.toml"));
+    }
     let robot = std::fs::read_to_string(shipped.join("ROBOT_MODEL"))
         .unwrap_or_else(|error| panic!("{}/ROBOT_MODEL: {error}", shipped.display()));
     let mut rows: Vec<PathBuf> = std::fs::read_dir(&shipped)
@@ -196,11 +201,19 @@ fn commands(
     let mut found = Vec::with_capacity(2 * steps.len());
     for episode in 0..2 {
         policy.reset();
+        // Each step is given the command the one before sent, as the control loop gives it.
+        let mut previous = SpeedCommand::STOP;
         for (step, (top, bottom)) in steps.iter().enumerate() {
             let output = policy
-                .step(PolicyInput { top, bottom })
+                .step(PolicyInput {
+                    top,
+                    bottom,
+                    previous,
+                })
                 .unwrap_or_else(|e| panic!("episode {episode} step {step}: {e}"));
             found.push([output.forward, output.left, output.turn]);
+            previous = SpeedCommand::new(output.forward, output.left, output.turn)
+                .unwrap_or(SpeedCommand::STOP);
         }
     }
     found

@@ -68,10 +68,7 @@ fn step(policy: &mut OnnxPolicy, brightness: u8) -> [f32; 3] {
     top.as_bytes_mut().fill(brightness);
     bottom.as_bytes_mut().fill(brightness / 2);
     let out = policy
-        .step(PolicyInput {
-            top: &top,
-            bottom: &bottom,
-        })
+        .step(PolicyInput::at_rest(&top, &bottom))
         .expect("a step runs");
     [out.forward, out.left, out.turn]
 }

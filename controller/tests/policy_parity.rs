@@ -3,7 +3,7 @@
 mod support;
 
 use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy, PolicyKind};
-use dribble_controller::{Policy, PolicyInput};
+use dribble_controller::{Policy, PolicyInput, SpeedCommand};
 use support::{fixture, reference};
 
 const TOLERANCE: f32 = 1e-5;
@@ -12,14 +12,19 @@ const TOLERANCE: f32 = 1e-5;
 fn worst_difference(policy: &mut OnnxPolicy, kind: &str) -> f32 {
     let reference = reference(kind);
     let mut worst = 0.0f32;
-    for (step, ((top, bottom), expected)) in reference
+    for (step, (((top, bottom), expected), &previous)) in reference
         .thumbnails
         .iter()
         .zip(&reference.commands)
+        .zip(&reference.previous)
         .enumerate()
     {
         let output = policy
-            .step(PolicyInput { top, bottom })
+            .step(PolicyInput {
+                top,
+                bottom,
+                previous,
+            })
             .unwrap_or_else(|error| panic!("step {step}: {error}"));
         let got = [output.forward, output.left, output.turn];
         for (g, e) in got.iter().zip(expected) {
@@ -49,6 +54,50 @@ fn cnn_matches_pytorch() {
     let worst = worst_difference(&mut policy, "cnn");
     println!("CNN: max |controller - PyTorch| = {worst:.2e}");
     assert!(worst <= TOLERANCE, "{worst}");
+}
+
+/// A CNN that reads the last command sent: both engines reproduce PyTorch over steps whose
+/// last commands span the range, and the command it answers follows the last command.
+#[test]
+fn a_cnn_reading_the_last_command_matches_pytorch_on_both_engines() {
+    for engine in [Engine::Compiled, Engine::Tract] {
+        let options = EngineOptions { engine, isa: None };
+        let (mut policy, _) =
+            OnnxPolicy::load_with(&fixture("cnn-previous").join("policy.toml"), options)
+                .unwrap_or_else(|error| panic!("loading the cnn-previous fixture: {error}"));
+        assert_eq!(
+            policy.engine().compiled.is_some(),
+            engine == Engine::Compiled,
+            "{}",
+            policy.engine()
+        );
+        let worst = worst_difference(&mut policy, "cnn-previous");
+        println!(
+            "CNN with the last command, {}: max |controller - PyTorch| = {worst:.2e}",
+            engine.name()
+        );
+        assert!(worst <= TOLERANCE, "{}: {worst}", engine.name());
+        let reference = reference("cnn-previous");
+        let (top, bottom) = &reference.thumbnails[0];
+        let mut answer = |previous| {
+            policy
+                .step(PolicyInput {
+                    top,
+                    bottom,
+                    previous,
+                })
+                .expect("step")
+        };
+        let at_rest = answer(SpeedCommand::STOP);
+        let turning = answer(SpeedCommand::new(0.0, 0.0, 1.0).expect("finite"));
+        assert_ne!(
+            at_rest,
+            turning,
+            "{}: the last command is read",
+            engine.name()
+        );
+        assert_eq!(answer(SpeedCommand::STOP), at_rest, "{}", engine.name());
+    }
 }
 
 #[test]
@@ -83,7 +132,7 @@ fn rcnn_matches_pytorch_over_sixty_steps_and_reset_starts_afresh() {
 fn rcnn_state_is_carried_between_steps() {
     let reference = reference("rcnn");
     let (top, bottom) = &reference.thumbnails[0];
-    let input = PolicyInput { top, bottom };
+    let input = PolicyInput::at_rest(top, bottom);
     let mut policy = load("rcnn");
     let first = policy.step(input).expect("step");
     let second = policy.step(input).expect("step");
@@ -132,7 +181,7 @@ fn a_standardised_policy_ignores_a_cameras_gain_and_offset() {
     }
     let command = |policy: &mut OnnxPolicy, top, bottom| {
         let output = policy
-            .step(PolicyInput { top, bottom })
+            .step(PolicyInput::at_rest(top, bottom))
             .expect("a step of the fixture");
         [output.forward, output.left, output.turn]
     };

@@ -6,6 +6,8 @@ BOTTOM_SHAPE = (60, 80)
 TOP_INPUT = "top"
 BOTTOM_INPUT = "bottom"
 COMMAND_OUTPUT = "command"
+#: The last command sent, `[1, 3]`, for a network that reads it (`[inputs] previous`).
+PREVIOUS_INPUT = "previous"
 H_INPUT, C_INPUT = "h_in", "c_in"
 H_OUTPUT, C_OUTPUT = "h_out", "c_out"
 

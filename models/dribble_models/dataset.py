@@ -42,16 +42,30 @@ class Episode:
     # camera effects and light (the venue and the robots kept).
     top_clean: np.ndarray | None = None  # u8 [T, 120, 160]
     bottom_clean: np.ndarray | None = None  # u8 [T, 60, 80]
+    # The command the robot executed at the row before each row, as the controller sends it
+    # (clamped; zero at the first row): what a network reading its last command (`[inputs]
+    # previous`) is fed. From the recording (`executed_before`); None where not given, which
+    # `previous` reads as the labels' own.
+    executed_before: np.ndarray | None = None  # f32 [T, 3]
 
     def __len__(self) -> int:
         return len(self.phase)
+
+    @property
+    def previous(self) -> np.ndarray:
+        """The last command before each row [T, 3] (`executed_before`, or for an episode
+        without it the row before's label: what a teacher-driven recording executed)."""
+        if self.executed_before is not None:
+            return self.executed_before
+        return executed_before(self.command)
 
     def rows(self, start: int, end: int) -> "Episode":
         """Rows start..end (exclusive) as an episode of the same seed."""
         part = slice(start, end)
         optional = (None if a is None else a[part] for a in (self.robot_pose, self.ball, self.time_s))
         twin = (None if a is None else a[part] for a in (self.top_clean, self.bottom_clean))
-        return Episode(self.seed, self.top[part], self.bottom[part], self.command[part], self.phase[part], *optional, self.conditions, *twin)
+        executed = None if self.executed_before is None else self.executed_before[part]
+        return Episode(self.seed, self.top[part], self.bottom[part], self.command[part], self.phase[part], *optional, self.conditions, *twin, executed)
 
     @property
     def has_clean_twin(self) -> bool:
@@ -77,6 +91,28 @@ class Dataset:
     def subset(self, seeds: list[int]) -> list[Episode]:
         wanted = set(seeds)
         return [e for e in self.episodes if e.seed in wanted]
+
+
+def executed_before(executed: np.ndarray) -> np.ndarray:
+    """Each row's last command: the command executed at the row before, clamped as the
+    controller clamps what it sends (a non-finite one a stop), zero before the first."""
+    executed = np.asarray(executed, dtype=np.float32)
+    previous = np.zeros_like(executed)
+    before = executed[:-1]
+    finite = np.all(np.isfinite(before), axis=1, keepdims=True)
+    previous[1:] = np.where(finite, np.clip(np.nan_to_num(before), -1.0, 1.0), 0.0)
+    return previous
+
+
+def executed_commands(arrays, labels: np.ndarray) -> np.ndarray:
+    """What the robot executed at each row: the labels of an expert-driven episode; in a
+    policy-driven one (`policy_command`, `expert_executed`) the policy's command, or the
+    expert's where DAgger's draw executed it."""
+    if "policy_command" not in arrays.files:
+        return labels
+    policy = arrays["policy_command"].astype(np.float32)
+    expert = arrays["expert_executed"].astype(bool)[:, None]
+    return np.where(expert, labels, policy).astype(np.float32)
 
 
 def content_hash(entries: list[dict]) -> str:
@@ -146,6 +182,7 @@ def load(directory: Path, require_seeds: list[int] | None = None) -> Dataset:
                 top_clean=arrays["top_clean"] if "top_clean" in arrays.files else None,
                 bottom_clean=arrays["bottom_clean"] if "bottom_clean" in arrays.files else None,
             )
+            episode.executed_before = executed_before(executed_commands(arrays, episode.command))
         rows = len(episode)
         shapes = (episode.top.shape, episode.bottom.shape, episode.command.shape)
         if shapes != ((rows, 120, 160), (rows, 60, 80), (rows, 3)) or rows != entry["rows"]:

@@ -12,7 +12,7 @@ import torch
 
 from . import contract
 from .manifest import Lineage, Manifest, TrainingRecord
-from .networks import CNN, HCNN, RCNN, ModalCNN, RCNNStep, set_standardise, standardises
+from .networks import CNN, HCNN, RCNN, ModalCNN, PreviousCommandCNN, RCNNStep, set_standardise, standardises
 
 
 @contextmanager
@@ -61,6 +61,18 @@ def export_cnn(model: CNN | ModalCNN, path: Path) -> Path:
     )
 
 
+def export_previous_command_cnn(model: PreviousCommandCNN, path: Path) -> Path:
+    # A last command unlike the zero of an episode's start, so that the tracer keeps its path.
+    previous = torch.tensor([[0.5, -0.25, 0.75]])
+    return _export(
+        model,
+        (*_example_inputs(), previous),
+        path,
+        [contract.TOP_INPUT, contract.BOTTOM_INPUT, contract.PREVIOUS_INPUT],
+        [contract.COMMAND_OUTPUT],
+    )
+
+
 def export_rcnn_step(model: RCNN, path: Path) -> Path:
     units = model.lstm.hidden_size
     # Distinct example tensors for h and c: passing one tensor for both lets the tracer merge
@@ -76,7 +88,7 @@ def export_rcnn_step(model: RCNN, path: Path) -> Path:
     )
 
 
-def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training: TrainingRecord, lineage: Lineage | None = None) -> Path:
+def export_policy(model: CNN | ModalCNN | PreviousCommandCNN | HCNN | RCNN, directory: Path, training: TrainingRecord, lineage: Lineage | None = None) -> Path:
     """Writes the model's ONNX file(s) and `policy.toml` into `directory`; returns the manifest."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -88,7 +100,7 @@ def export_policy(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training
     return manifest.write(directory)
 
 
-def _export_networks(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, training: TrainingRecord) -> Manifest:
+def _export_networks(model: CNN | ModalCNN | PreviousCommandCNN | HCNN | RCNN, directory: Path, training: TrainingRecord) -> Manifest:
     if isinstance(model, HCNN):
         networks = [f"cnn{k}.onnx" for k in range(len(model.experts))]
         for expert, name in zip(model.experts, networks):
@@ -97,6 +109,9 @@ def _export_networks(model: CNN | ModalCNN | HCNN | RCNN, directory: Path, train
     elif isinstance(model, RCNN):
         export_rcnn_step(model, directory / "policy.onnx")
         manifest = Manifest("rcnn", ["policy.onnx"], training, lstm_units=model.lstm.hidden_size)
+    elif isinstance(model, PreviousCommandCNN):
+        export_previous_command_cnn(model, directory / "policy.onnx")
+        manifest = Manifest("cnn", ["policy.onnx"], training, previous=True)
     elif isinstance(model, (CNN, ModalCNN)):
         export_cnn(model, directory / "policy.onnx")
         manifest = Manifest("cnn", ["policy.onnx"], training)

@@ -23,7 +23,7 @@ from . import contract
 from .export import export_policy
 from .gating import fit_centroids, gating_feature
 from .manifest import Manifest, TrainingRecord
-from .networks import CNN, HCNN, RCNN, to_network_input
+from .networks import CNN, HCNN, RCNN, PreviousCommandCNN, to_network_input
 
 SEED = 2017
 CNN_STEPS = 12
@@ -126,6 +126,26 @@ def write_rcnn(out: Path, rng: np.random.Generator) -> None:
     write_reference(out / "rcnn", tops, bottoms, commands[0].numpy())
 
 
+def write_cnn_previous(out: Path, rng: np.random.Generator) -> None:
+    """A CNN that also reads the last command sent (`[inputs] previous`), with a reference:
+    per step the thumbnails, the last command fed (`previous.f32`, 3 f32 per step: a stop at
+    the first step, then commands across the whole range) and PyTorch's command."""
+    torch.manual_seed(SEED + 3)
+    model = PreviousCommandCNN().eval()
+    with torch.no_grad():
+        # Weights of a trained network's size on the last command, so its effect is plain.
+        model.hidden.weight[:, -3:] = torch.randn(model.hidden.out_features, 3) * 0.5
+    round_to_bfloat16(model)
+    export_policy(model, out / "cnn-previous", fixture_record())
+    tops, bottoms = synthetic_pairs(rng, CNN_STEPS)
+    previous = rng.uniform(-1.0, 1.0, size=(CNN_STEPS, 3)).astype(np.float32)
+    previous[0] = 0.0
+    with torch.no_grad():
+        commands = model(*to_network_input(tops, bottoms), torch.from_numpy(previous)).numpy()
+    write_reference(out / "cnn-previous", tops, bottoms, commands)
+    previous.astype("<f4").tofile(out / "cnn-previous" / "reference" / "previous.f32")
+
+
 CNN_INT8_CALIBRATION = 48
 CNN_INT8_REFERENCE_STEPS = 4
 
@@ -208,6 +228,7 @@ def main() -> None:
     write_nan(args.out)
     # Its own generator, so that the other fixtures stay what they were before it existed.
     write_cnn_int8(args.out, np.random.default_rng(SEED + 8))
+    write_cnn_previous(args.out, np.random.default_rng(SEED + 9))
     for path in sorted(args.out.rglob("*")):
         if path.is_file():
             print(f"{path.stat().st_size:>9}  {path.relative_to(args.out)}")

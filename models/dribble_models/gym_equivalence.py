@@ -56,13 +56,32 @@ class OnnxPolicy:
         self.standardise = bool(manifest["normalisation"].get("standardise", False))
         self.top = manifest["inputs"]["top"]["name"]
         self.bottom = manifest["inputs"]["bottom"]["name"]
+        # A network that reads the last command sent (`[inputs] previous`) is fed the command
+        # this object answered last, clamped as the controller sends it; zero after `reset`.
+        previous = manifest["inputs"].get("previous")
+        self.previous_input = previous["name"] if previous else None
+        self.previous = np.zeros(3, dtype=np.float32)
 
-    def __call__(self, observation) -> np.ndarray:
+    @property
+    def reads_previous(self) -> bool:
+        return self.previous_input is not None
+
+    def reset(self) -> None:
+        """An episode's start: the last command is a stop."""
+        self.previous = np.zeros(3, dtype=np.float32)
+
+    def __call__(self, observation, info=None) -> np.ndarray:
         feed = {
             self.top: contract.network_input(observation["top"][None, None], self.standardise, self.scale),
             self.bottom: contract.network_input(observation["bottom"][None, None], self.standardise, self.scale),
         }
-        return self.session.run(None, feed)[0][0]
+        if self.previous_input is not None:
+            feed[self.previous_input] = self.previous[None]
+        command = self.session.run(None, feed)[0][0]
+        # The controller's rule: a non-finite command is a stop, each component clamped.
+        finite = np.all(np.isfinite(command))
+        self.previous = np.clip(command, -1.0, 1.0).astype(np.float32) if finite else np.zeros(3, np.float32)
+        return command
 
 
 @dataclass
@@ -83,6 +102,8 @@ def play_in_environment(policy, seeds, time_limit_s: float, expert: str = "paper
     try:
         for seed in seeds:
             observation, info = env.reset(seed=seed)
+            if hasattr(policy, "reset"):
+                policy.reset()
             started, steps = time.perf_counter(), 0
             while True:
                 observation, _, terminated, truncated, info = env.step(policy(observation, info))
@@ -192,7 +213,7 @@ def main(argv=None) -> int:
         evaluation = play_in_eval("teacher", args.episodes, args.time_limit, args.expert)
     else:
         policy = OnnxPolicy(Path(args.policy))
-        environment = play_in_environment(lambda o, _: policy(o), args.episodes, args.time_limit)
+        environment = play_in_environment(policy, args.episodes, args.time_limit)
         evaluation = play_in_eval(args.policy, args.episodes, args.time_limit)
     rows = compare(environment, evaluation)
     def apart(r):

@@ -201,7 +201,9 @@ class DribbleOnnxPolicy(PreTrainedPolicy):
         return {}
 
     def reset(self) -> None:
-        """A CNN carries nothing from one step to the next."""
+        """An episode's start: a CNN carries nothing from one step to the next but, where it
+        reads one, the last command sent."""
+        self.network.reset()
 
     def forward(self, batch: dict[str, Tensor]):
         raise NotImplementedError("a shipped dribble policy is evaluated here, not trained")
@@ -216,6 +218,11 @@ class DribbleOnnxPolicy(PreTrainedPolicy):
 
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         tops, bottoms = self.thumbnails(batch[TOP]), self.thumbnails(batch[BOTTOM])
+        if self.network.reads_previous and len(tops) != 1:
+            raise ValueError(
+                f"{self.config.model}: a policy that reads its last command runs one environment "
+                f"at a time (a batch of {len(tops)} shares one last command)"
+            )
         commands = [self.network({"top": top, "bottom": bottom}) for top, bottom in zip(tops, bottoms)]
         return torch.from_numpy(np.asarray(commands, dtype=np.float32))
 

@@ -82,6 +82,8 @@ class Manifest:
     command_scale: dict[str, float] = field(default_factory=lambda: dict(contract.COMMAND_SCALE))
     # Each thumbnail standardised by the controller before the network (contract.network_input).
     standardise: bool = False
+    # The last command sent as a third input (`[inputs] previous`; a CNN only).
+    previous: bool = False
     lineage: Lineage | None = None
 
     def to_toml(self) -> str:
@@ -111,6 +113,15 @@ class Manifest:
             "[inputs]",
             f'top = {{ name = "{contract.TOP_INPUT}", shape = [1, 1, {contract.TOP_SHAPE[0]}, {contract.TOP_SHAPE[1]}] }}',
             f'bottom = {{ name = "{contract.BOTTOM_INPUT}", shape = [1, 1, {contract.BOTTOM_SHAPE[0]}, {contract.BOTTOM_SHAPE[1]}] }}',
+            *(
+                [
+                    "# The command the controller sent last: normalised, clamped, a stop where it",
+                    "# sent a stop, zero at an episode's start.",
+                    f'previous = {{ name = "{contract.PREVIOUS_INPUT}", shape = [1, 3] }}',
+                ]
+                if self.previous
+                else []
+            ),
             "",
             "[outputs]",
             f'command = {{ name = "{contract.COMMAND_OUTPUT}", shape = [1, 3] }}',

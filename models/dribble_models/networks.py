@@ -116,6 +116,45 @@ class CNN(nn.Module):
         return self.head(self.features(top, bottom))
 
 
+class PreviousCommandCNN(nn.Module):
+    """Beyond the paper: the CNN with the last command the controller sent as a third input
+    (`[inputs] previous`, DESIGN.md "Policies"), into its hidden layer:
+    (top, bottom, previous [B,3]) -> command [B,3].
+
+    Why: beside the ball, facing what it cannot read, a reactive CNN cannot tell which way
+    round the ball it was going; the teacher's two detours average to a stop and the robot
+    stands (docs/src/history/previous-command.md). The command it sent last is known on the
+    robot and breaks the tie the way it was already moving. `previous` is each component
+    normalised and clamped to [-1, 1], a stop where the controller sent one, zero at an
+    episode's start (`dribble_models.previous_command.previous_commands` for recorded rows).
+    384 multiply-adds more than the CNN."""
+
+    def __init__(self, features: CameraFeatures | None = None) -> None:
+        super().__init__()
+        self.features = features if features is not None else CameraFeatures()
+        self.hidden = nn.Linear(self.features.filters.features + 3, 128)
+        self.out = nn.Linear(128, 3)
+
+    @staticmethod
+    def from_cnn(cnn: CNN) -> "PreviousCommandCNN":
+        """Begins as `cnn`'s function: its branches and dense layers, the last command's
+        weights zero."""
+        model = PreviousCommandCNN(cnn.features)
+        first, last = cnn.head[0], cnn.head[2]
+        with torch.no_grad():
+            model.hidden.weight.zero_()
+            model.hidden.weight[:, : first.in_features] = first.weight
+            model.hidden.bias.copy_(first.bias)
+            model.out.load_state_dict(last.state_dict())
+        return model
+
+    def head(self, features: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
+        return self.out(torch.relu(self.hidden(torch.cat([features, previous], dim=1))))
+
+    def forward(self, top: torch.Tensor, bottom: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
+        return self.head(self.features(top, bottom), previous)
+
+
 class ModalCNN(nn.Module):
     """Beyond the paper: the CNN with `modes` command hypotheses and a learned choice among
     them (winner-takes-all training, Guzman-Rivera et al. 2012; Rupprecht et al. 2017).

@@ -55,55 +55,16 @@ from tqdm import tqdm
 
 from .cluster import seed_range
 from .command_metric import row_errors, sent_commands
-from .dataset import PHASES, DatasetError, Episode, load
+from .dataset import PHASES, DatasetError, Episode, executed_before, load
 from .eval_summary import summarise_episode
-from .networks import CNN, CameraFeatures, set_standardise, to_network_input
+from .networks import CNN, CameraFeatures, PreviousCommandCNN, set_standardise, to_network_input
 from .seed_ranges import refuse_reserved
 from .shipped_weights import load_shipped_weights
 
-#: The hidden layer's width (DESIGN.md, "Policies").
-HIDDEN = 128
-
-
-class PreviousCommandCNN(nn.Module):
-    """The CNN with the last command sent as a second input to its hidden layer:
-    (top, bottom, previous [B,3]) -> command [B,3]."""
-
-    # A standardised start standardises inside its features (`CameraFeatures.standardise_input`),
-    # as in training, so every input is `pixel * INPUT_SCALE` (`networks.to_network_input`).
-
-    def __init__(self, features: CameraFeatures) -> None:
-        super().__init__()
-        self.features = features
-        self.hidden = nn.Linear(features.filters.features + 3, HIDDEN)
-        self.out = nn.Linear(HIDDEN, 3)
-
-    @staticmethod
-    def from_cnn(cnn: CNN) -> "PreviousCommandCNN":
-        """Begins as `cnn`'s function: its branches and dense layers, the last command's
-        weights zero."""
-        model = PreviousCommandCNN(cnn.features)
-        first, last = cnn.head[0], cnn.head[2]
-        with torch.no_grad():
-            model.hidden.weight.zero_()
-            model.hidden.weight[:, : first.in_features] = first.weight
-            model.hidden.bias.copy_(first.bias)
-            model.out.load_state_dict(last.state_dict())
-        return model
-
-    def head(self, features: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
-        return self.out(torch.relu(self.hidden(torch.cat([features, previous], dim=1))))
-
-    def forward(self, top: torch.Tensor, bottom: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
-        return self.head(self.features(top, bottom), previous)
-
-
 def previous_commands(commands: np.ndarray) -> np.ndarray:
     """The command sent before each row of a teacher-driven episode: the row before's,
-    clamped as the controller clamps it; zero before the first."""
-    previous = np.zeros_like(commands, dtype=np.float32)
-    previous[1:] = sent_commands(commands[:-1])
-    return previous
+    clamped as the controller clamps it; zero before the first (`dataset.executed_before`)."""
+    return executed_before(commands)
 
 
 def start_model(path: Path) -> CNN:

@@ -74,7 +74,7 @@ from .gating import fit_centroids
 from .camera_effects import CameraMotion, apply_camera_effects, light_patches
 from .command_metric import row_errors, sent_commands
 from .manifest import Lineage, ModelReference, TrainingRecord
-from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, set_standardise, standardises
+from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, PreviousCommandCNN, set_standardise, standardises
 from .one_way_detour import OneWayDetour
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of, shipped_initializers
 from .stalls import CutReport, StallRule, cut_all
@@ -282,13 +282,20 @@ def device_of(model: nn.Module) -> torch.device:
 
 
 @torch.no_grad()
-def predict_cnn(model: CNN, episode: Episode, chunk: int = 512) -> np.ndarray:
+def predict_cnn(model: CNN | ModalCNN | PreviousCommandCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
+    """Each row's command; a network that reads its last command is given the command the
+    recording executed at the row before (`Episode.previous`), as the controller would feed
+    it on the robot that drove the episode."""
     model.eval()
     device = device_of(model)
-    out = [
-        model(to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device)).cpu().numpy()
-        for i in range(0, len(episode), chunk)
-    ]
+
+    def rows(i: int) -> tuple[torch.Tensor, ...]:
+        images = (to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device))
+        if isinstance(model, PreviousCommandCNN):
+            return (*images, torch.from_numpy(episode.previous[i : i + chunk]).to(device))
+        return images
+
+    out = [model(*rows(i)).cpu().numpy() for i in range(0, len(episode), chunk)]
     return np.concatenate(out) if out else np.zeros((0, 3), np.float32)
 
 
@@ -393,6 +400,8 @@ class Rows:
     bottom: np.ndarray
     command: np.ndarray
     phase: np.ndarray
+    # The command executed at the row before each row (`Episode.previous`), f32 [N, 3].
+    previous: np.ndarray
 
     @staticmethod
     def of(episodes: list[Episode]) -> "Rows":
@@ -401,6 +410,7 @@ class Rows:
             np.concatenate([e.bottom for e in episodes]),
             np.concatenate([e.command for e in episodes]),
             np.concatenate([e.phase for e in episodes]),
+            np.concatenate([e.previous for e in episodes]),
         )
 
 
@@ -573,7 +583,9 @@ class Training:
                 # on the held-out episodes, by the same rule as the training rows.
                 labels = distilled_labels(args, self.validation_episodes, self.device)
                 self.validation_episodes = [dataclasses.replace(e, command=l) for e, l in zip(self.validation_episodes, labels)]
-        if self.kind == "cnn":
+        if self.kind == "cnn" and args.previous_command:
+            self.model = PreviousCommandCNN(CameraFeatures(args.filters))
+        elif self.kind == "cnn":
             self.model = CNN(args.filters) if args.modes == 1 else ModalCNN(args.modes, args.filters)
         elif self.kind == "rcnn":
             self.model = RCNN()
@@ -621,6 +633,13 @@ class Training:
 
         A CNN with command hypotheses may start from a one-output CNN: its head is widened
         (`ModalCNN.widened`), so the run begins with the start's commands."""
+        if isinstance(self.model, PreviousCommandCNN):
+            if self.starts_one_output(path) and not self.starts_reading_previous(path):
+                # The start's function: its branches and head, the last command's weights zero.
+                one = CNN(self.args.filters)
+                self.load_start(one, path, modes=1)
+                self.model = PreviousCommandCNN.from_cnn(one)
+                return
         if isinstance(self.model, ModalCNN) and self.starts_one_output(path):
             one = CNN(self.args.filters)
             self.load_start(one, path, modes=1)
@@ -642,6 +661,13 @@ class Training:
         identity = torch.load(path, weights_only=False, map_location="cpu")["identity"]
         return identity["kind"] == "cnn" and identity.get("modes", 1) == 1
 
+    def starts_reading_previous(self, path: Path) -> bool:
+        """Whether the start at `path` is a checkpoint of a network that reads its last command."""
+        if is_shipped_model(path) or not Path(path).is_file():
+            return False
+        identity = torch.load(path, weights_only=False, map_location="cpu")["identity"]
+        return "previous_command" in identity
+
     def load_start(self, model: nn.Module, path: Path, modes: int) -> None:
         """Loads the start at `path` into `model` (of `modes` hypotheses), or refuses it."""
         if is_shipped_model(path):
@@ -653,6 +679,8 @@ class Training:
         if not Path(path).is_file():
             raise DatasetError(f"--init-from {path}: no such checkpoint")
         state = torch.load(path, weights_only=False, map_location="cpu")
+        if ("previous_command" in state["identity"]) != isinstance(model, PreviousCommandCNN):
+            raise DatasetError(f"--init-from {path}: one of the start and this run reads its last command and the other does not")
         if state["identity"]["kind"] != self.kind or state["identity"].get("modes", 1) != modes:
             raise DatasetError(
                 f"--init-from {path} is a {state['identity']['kind']} with {state['identity'].get('modes', 1)} command "
@@ -698,6 +726,7 @@ class Training:
             **({"distill_camera_clean": True} if a.distill_camera_clean else {}),
             **({"validate_distilled": True} if a.validate_distilled else {}),
             **({"one_way_detour": True} if a.one_way_detour else {}),
+            **({"previous_command": {"noise": a.previous_noise}} if a.previous_command else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
 
@@ -745,6 +774,15 @@ class Training:
             top, bottom = self.camera_augment(top, bottom, generator)
         return top.to(self.device), bottom.to(self.device), torch.from_numpy(self.rows.command[index]).to(self.device)
 
+    def batch_previous(self, index: np.ndarray, generator: torch.Generator) -> torch.Tensor:
+        """The rows' last commands, perturbed by `--previous-noise` (Gaussian, normalised
+        units): the network must not read its label off the last command to the last digit
+        (imitation's copycat), and learns from its images what the last command leaves open."""
+        previous = torch.from_numpy(self.rows.previous[index])
+        if self.args.previous_noise > 0:
+            previous = previous + self.args.previous_noise * torch.randn(previous.shape, generator=generator)
+        return previous.to(self.device)
+
     def epoch_rows(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray]]:
         """(network, row batch) pairs of one epoch, shuffled; network 0 for a CNN."""
         every = np.arange(len(self.rows.phase))
@@ -772,7 +810,9 @@ class Training:
         for k, index in work:
             network = self.model if self.kind == "cnn" else self.model.experts[k]
             top, bottom, target = self.batch_inputs(index, generator)
-            if isinstance(network, ModalCNN):
+            if isinstance(network, PreviousCommandCNN):
+                loss = nn.functional.mse_loss(network(top, bottom, self.batch_previous(index, generator)), target)
+            elif isinstance(network, ModalCNN):
                 loss = winner_takes_all_loss(network, top, bottom, target)
             else:
                 loss = nn.functional.mse_loss(network(top, bottom), target)
@@ -1013,6 +1053,11 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: b
         rows = "on the rows of camera-clean episodes (clean or robots only) and, where recorded, the clean twins of conditioned rows; the teacher's labels elsewhere" if args.distill_camera_clean else "for each training row (its clean twin where recorded)"
         validated = "validated on them by the same rule" if args.validate_distilled else "validated on the teacher's"
         parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) {rows}, {validated}")
+    if args.previous_command:
+        parts.append(
+            f"the last command sent is a third input ([inputs] previous; PreviousCommandCNN): on each row the command executed "
+            f"at the row before, perturbed on training rows by Gaussian noise of {args.previous_noise:g}"
+        )
     if args.one_way_detour:
         parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
     if args.features_from is not None:
@@ -1040,6 +1085,8 @@ class TrainingConfig:
     distill_camera_clean: bool = False
     validate_distilled: bool = False
     one_way_detour: bool = False
+    previous_command: bool = False
+    previous_noise: float = 0.2
     test_dataset: Path | None = None
     epochs: int = 0
     epoch_fraction: float = 1.0
@@ -1089,6 +1136,8 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--distill-camera-clean", action="store_true", help="with --distill-from: its commands only where a model trained on clean renders sees as it learned to: the rows of episodes recorded with no camera, light or venue condition (clean, robots), and conditioned rows recorded with a clean twin (`dribble record --clean-twin`: its commands on the twin's thumbnails); the teacher's labels on the rest (a robust student of a clean-trained policy, with --camera-augment)")
     parser.add_argument("--validate-distilled", action="store_true", help="with --distill-from: the held-out episodes take the distilled labels too (by the same rule as the training rows), so the kept checkpoint is the one nearest the distilled model rather than the teacher")
     parser.add_argument("--one-way-detour", action="store_true", help="where the teacher walks around the ball to get behind it, on the side of the ball-to-goal line it stands on (a side the images often cannot show), label the rows with the same walk around the ball always clockwise; training and validation rows (dribble_models.one_way_detour)")
+    parser.add_argument("--previous-command", action="store_true", help="CNN: the network also reads the command the controller sent last (a third input, [inputs] previous: beyond the paper), fed on each row the command the recording executed at the row before; a one-output CNN start begins as its own function, the new weights zero (PreviousCommandCNN)")
+    parser.add_argument("--previous-noise", type=float, default=0.2, metavar="SIGMA", help="with --previous-command: Gaussian noise on the last command of training rows, in normalised units (default 0.2)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")
@@ -1141,6 +1190,10 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--camera-augment is a share of the rows, in [0, 1]")
     if args.freeze_features and (args.augment or args.camera_augment > 0):
         parser.error("--freeze-features computes each episode's features once: no --augment")
+    if args.previous_command and (args.kind != "cnn" or args.modes != 1 or args.prune_from is not None):
+        parser.error("--previous-command trains a one-output CNN (--kind cnn, --modes 1, no --prune-from)")
+    if not args.previous_noise >= 0:
+        parser.error("--previous-noise is a standard deviation, not negative")
     if args.prune_from is not None and args.init_from is not None:
         parser.error("--prune-from and --init-from are two starts: name one")
     return TrainingConfig.from_namespace(args)

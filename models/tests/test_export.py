@@ -12,7 +12,7 @@ from dribble_models import contract
 from dribble_models.export import export_cnn, export_policy, export_rcnn_step
 from dribble_models.fixtures import synthetic_pairs
 from dribble_models.manifest import TrainingRecord, load
-from dribble_models.networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, Filters, ModalCNN, to_network_input
+from dribble_models.networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, Filters, ModalCNN, PreviousCommandCNN, to_network_input
 
 TOLERANCE = 1e-5
 RECORD = TrainingRecord(dataset="test", epochs=0)
@@ -188,3 +188,31 @@ def test_a_standardised_policy_exports_the_network_alone(tmp_path, rng):
     assert standardises(restarted)
     plain = CNN(Filters(4, 8, 4, 8)).eval()
     assert "standardise" not in tomllib.loads(Path(export_policy(plain, tmp_path / "plain", RECORD)).read_text())["normalisation"]
+
+
+def test_a_cnn_reading_its_last_command_exports_three_inputs_and_starts_as_its_cnn(tmp_path, rng):
+    cnn = CNN().eval()
+    model = PreviousCommandCNN.from_cnn(cnn).eval()
+    tops, bottoms = synthetic_pairs(rng, 4)
+    top, bottom = to_network_input(tops, bottoms)
+    previous = torch.from_numpy(rng.uniform(-1, 1, (4, 3)).astype(np.float32))
+    with torch.no_grad():
+        # The last command's weights start at zero: the start's function, whatever it is.
+        assert torch.allclose(model(top, bottom, previous), cnn(top, bottom), atol=1e-6)
+        model.hidden.weight[:, -3:] = torch.from_numpy(rng.normal(0, 0.5, (128, 3)).astype(np.float32))
+        expected = model(top, bottom, previous).numpy()
+    manifest_path = export_policy(model, tmp_path, RECORD)
+    manifest = load(manifest_path)
+    assert manifest["inputs"]["previous"] == {"name": contract.PREVIOUS_INPUT, "shape": [1, 3]}
+    graph = onnx.load(str(tmp_path / "policy.onnx"))
+    assert [v.name for v in graph.graph.input] == ["top", "bottom", "previous"]
+    runtime = session(tmp_path / "policy.onnx")
+    got = np.concatenate(
+        [
+            runtime.run(None, {"top": top[i : i + 1].numpy(), "bottom": bottom[i : i + 1].numpy(), "previous": previous[i : i + 1].numpy()})[0]
+            for i in range(4)
+        ]
+    )
+    assert np.abs(got - expected).max() <= TOLERANCE
+    # The plain CNN's manifest names no last command.
+    assert "previous" not in load(export_policy(cnn, tmp_path / "plain", RECORD))["inputs"]

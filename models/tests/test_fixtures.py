@@ -27,7 +27,7 @@ def run(path: Path, **inputs):
     return ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, inputs)
 
 
-@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn"])
+@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn", "cnn-previous"])
 def test_fixture_onnx_reproduces_its_reference(kind):
     manifest = load(FIXTURES / kind / "policy.toml")
     meta, tops, bottoms, commands = references(kind)
@@ -41,7 +41,10 @@ def test_fixture_onnx_reproduces_its_reference(kind):
         if kind == "hcnn":
             network = nearest_cluster(tops[step], bottoms[step], np.array(manifest["gating"]["centroids"]))
             assert network == meta["clusters"][step]
-        if kind == "rcnn":
+        if kind == "cnn-previous":
+            previous = np.fromfile(FIXTURES / kind / "reference" / "previous.f32", "<f4").reshape(-1, 3)
+            (command,) = sessions[0].run(None, {**inputs, "previous": previous[step][None]})
+        elif kind == "rcnn":
             command, h, c = sessions[0].run(None, {**inputs, **state})
             state = {"h_in": h, "c_in": c}
         else:

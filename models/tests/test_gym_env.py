@@ -75,6 +75,34 @@ def test_a_shipped_policy_through_onnxruntime_plays_as_dribble_eval():
     assert np.linalg.norm(environment[0].robot[-1] - environment[0].robot[0]) > 0.1
 
 
+def test_a_policy_reading_its_last_command_plays_as_dribble_eval_feeds_it():
+    """The fixture that reads its last command: onnxruntime fed the command this side sent
+    last (zero at the start), the controller fed the command it published last; the same
+    paths within the engines' rounding, so both sides feed the same last command."""
+    manifest = REPOSITORY / "models/fixtures/cnn-previous/policy.toml"
+    policy = OnnxPolicy(manifest)
+    assert policy.reads_previous
+    seeds = [7]
+    environment = play_in_environment(policy, seeds, 5.0)
+    evaluation = play_in_eval(str(manifest), seeds, 5.0)
+    (row,) = compare(environment, evaluation)
+    assert row["outcome_env"] == row["outcome_eval"], row
+    assert row["commands_env"] == row["commands_eval"], row
+    assert row["robot_gap_m"] < 5e-3 and row["ball_gap_m"] < 5e-3, row
+    assert np.linalg.norm(environment[0].robot[-1] - environment[0].robot[0]) > 0.02
+    # Fed a stop at every step instead, the same network walks elsewhere: the controller's
+    # path is the one of a network given its last command.
+    at_rest = OnnxPolicy(manifest)
+
+    def forgetting(observation, info):
+        at_rest.reset()
+        return at_rest(observation)
+
+    (unfed,) = compare(play_in_environment(forgetting, seeds, 5.0), evaluation)
+    print(f"gap to the controller's path: fed {row['robot_gap_m']:.4f} m, unfed {unfed['robot_gap_m']:.4f} m")
+    assert unfed["robot_gap_m"] > 10 * max(row["robot_gap_m"], 1e-3), (unfed, row)
+
+
 def test_reset_in_mid_episode_replays_the_episode_and_the_end_is_reported_once():
     env = gym_env.NaoDribbleEnv(time_limit_s=1.0, shaping=1.0)
     try:

@@ -40,9 +40,10 @@ from dribble_models.results import main as results_main
 from test_dataset import dribble_binary
 
 
-def write_dataset(directory: Path, seeds: list[int], rows: int, rng: np.random.Generator, twinned: tuple[int, ...] = ()) -> Path:
+def write_dataset(directory: Path, seeds: list[int], rows: int, rng: np.random.Generator, twinned: tuple[int, ...] = (), driven: bool = False) -> Path:
     """A dataset in `dribble record`'s format with random thumbnails and commands; the
-    episodes of the `twinned` seeds carry clean-twin thumbnails (`--clean-twin`)."""
+    episodes of the `twinned` seeds carry clean-twin thumbnails (`--clean-twin`); `driven`:
+    policy-driven episodes (`policy_command`, commands past the range, and `expert_executed`)."""
     directory.mkdir(parents=True, exist_ok=True)
     entries = []
     for seed in seeds:
@@ -52,6 +53,11 @@ def write_dataset(directory: Path, seeds: list[int], rows: int, rng: np.random.G
             twin = {
                 "top_clean": rng.integers(0, 256, (rows, 120, 160), dtype=np.uint8),
                 "bottom_clean": rng.integers(0, 256, (rows, 60, 80), dtype=np.uint8),
+            }
+        if driven:
+            twin |= {
+                "policy_command": rng.uniform(-1.5, 1.5, (rows, 3)).astype(np.float32),
+                "expert_executed": rng.integers(0, 2, rows, dtype=np.uint8),
             }
         np.savez_compressed(
             directory / file,
@@ -144,7 +150,7 @@ def run_score(policy: Path, data: Path, tmp_path: Path, *extra: str) -> subproce
     )
 
 
-@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn", "cnn --modes 2", "cnn --filters 8,16,4,8"])
+@pytest.mark.parametrize("kind", ["cnn", "hcnn", "rcnn", "cnn --modes 2", "cnn --filters 8,16,4,8", "cnn --previous-command"])
 def test_a_tiny_training_is_loaded_and_scored_by_the_robots_code(kind, tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2, 3], 24, rng)
     test = write_dataset(tmp_path / "test", [10000], 24, rng)
@@ -607,3 +613,29 @@ def test_validating_on_the_distilled_commands_gives_the_held_out_episodes_those_
     assert "validated on them by the same rule" in notes_of(parse_args([*common, "--out", "o", *flags, "--validate-distilled"]))
     with pytest.raises(SystemExit):
         parse_args([*common, "--out", "o", "--validate-distilled"])
+
+
+def test_a_cnn_reading_its_last_command_is_given_what_was_executed_before_each_row(tmp_path, rng):
+    """In a policy-driven round the robot executed the policy's command, or the expert's where
+    DAgger's draw chose it: the trainer and the robot's scorer feed each row the command
+    executed at the row before, clamped, a stop at the first."""
+    data = write_dataset(tmp_path / "round", [1, 2, 3], 12, rng, driven=True)
+    episode = ds.load(data).episodes[0]
+    with np.load(data / "episode_00001.npz") as arrays:
+        executed = np.where(arrays["expert_executed"][:, None] == 1, arrays["command"], arrays["policy_command"])
+    assert np.array_equal(episode.previous[0], np.zeros(3, np.float32))
+    assert np.array_equal(episode.previous[1:], np.clip(executed[:-1], -1, 1).astype(np.float32))
+    # A piece of an episode (a stall cut) keeps what was executed before its rows.
+    assert np.array_equal(episode.rows(4, 8).previous, episode.previous[4:8])
+    out = tmp_path / "model"
+    argv = ["--kind", "cnn", "--previous-command", "--dataset", str(data), "--out", str(out), "--epochs", "1"]
+    argv += ["--validation-episodes", "1", "--batch-size", "8", "--checkpoint-dir", str(tmp_path / "checkpoints"), "--threads", "1"]
+    assert main(argv) == 0
+    assert "previous = { name = \"previous\", shape = [1, 3] }" in (out / "policy.toml").read_text()
+    trainer = json.loads((out / "scores.json").read_text())["train"]
+    result = run_score(out / "policy.toml", data, tmp_path, "--json", str(tmp_path / "score.json"))
+    assert result.returncode == 0, result.stdout + result.stderr
+    robot = json.loads((tmp_path / "score.json").read_text())
+    assert abs(robot["error"] - trainer["error"]) < 1e-4, (robot["error"], trainer["error"])
+    with pytest.raises(SystemExit):
+        parse_args(["--kind", "rcnn", "--previous-command", "--dataset", str(data), "--out", str(out)])

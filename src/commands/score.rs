@@ -12,7 +12,7 @@ use anyhow::{Context, bail, ensure};
 use clap::{Args, ValueEnum};
 use dribble_controller::policy::{Engine, EngineOptions, OnnxPolicy, PolicyManifest};
 use dribble_controller::{BottomThumbnail, Policy, PolicyInput, SpeedCommand, TopThumbnail};
-use dribble_sim::dataset::{DatasetIndex, read_npz};
+use dribble_sim::dataset::{DatasetIndex, NpyArray, read_npz};
 use dribble_sim::expert::Phase;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
@@ -191,6 +191,7 @@ fn score_episode(
     let commands = array("command")?.as_f32();
     let phase = &array("phase")?.data;
     let rows = phase.len();
+    let executed = ExecutedCommands::of(&arrays, &commands, rows, path)?;
     ensure!(
         tops.len() == rows * top.as_bytes().len()
             && bottoms.len() == rows * bottom.as_bytes().len()
@@ -210,6 +211,7 @@ fn score_episode(
         let answer = policy.step(PolicyInput {
             top: &*top,
             bottom: &*bottom,
+            previous: executed.previous(row),
         });
         step_ms.push(step_started.elapsed().as_secs_f64() * 1e3);
         let sent = match answer {
@@ -236,6 +238,54 @@ fn score_episode(
 }
 
 /// Which of the manifest's datasets has content hash `hash`.
+/// The command each row's robot executed: the label in an expert-driven episode; in a
+/// policy-driven one the policy's, or the expert's where DAgger's draw executed it
+/// (`expert_executed`). A network that reads the last command is given, at each row, the
+/// command executed at the row before (clamped, as sent), a stop at an episode's first.
+struct ExecutedCommands<'a> {
+    labels: &'a [f32],
+    driven: Option<(Vec<f32>, &'a [u8])>,
+}
+
+impl<'a> ExecutedCommands<'a> {
+    fn of(
+        arrays: &'a std::collections::BTreeMap<String, NpyArray>,
+        labels: &'a [f32],
+        rows: usize,
+        path: &std::path::Path,
+    ) -> anyhow::Result<Self> {
+        let driven = match (arrays.get("policy_command"), arrays.get("expert_executed")) {
+            (Some(commands), Some(flags)) => {
+                let commands = commands.as_f32();
+                ensure!(
+                    commands.len() == rows * 3 && flags.data.len() == rows,
+                    "{}: policy_command or expert_executed disagrees with the {rows} rows",
+                    path.display()
+                );
+                Some((commands, &flags.data[..]))
+            }
+            (None, None) => None,
+            _ => bail!(
+                "{}: a policy-driven episode needs both policy_command and expert_executed",
+                path.display()
+            ),
+        };
+        Ok(Self { labels, driven })
+    }
+
+    /// The command executed before `row`, as the controller would have sent it.
+    fn previous(&self, row: usize) -> SpeedCommand {
+        let Some(before) = row.checked_sub(1) else {
+            return SpeedCommand::STOP;
+        };
+        let values = match &self.driven {
+            Some((commands, flags)) if flags[before] == 0 => &commands[before * 3..before * 3 + 3],
+            _ => &self.labels[before * 3..before * 3 + 3],
+        };
+        SpeedCommand::new(values[0], values[1], values[2]).unwrap_or(SpeedCommand::STOP)
+    }
+}
+
 fn role_of(manifest: &PolicyManifest, hash: &str) -> Option<Role> {
     let training = &manifest.training;
     if training.dataset_hash.as_deref() == Some(hash) {

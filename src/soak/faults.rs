@@ -376,10 +376,7 @@ mod tests {
             let (mut top, bottom) = (TopThumbnail::black(), BottomThumbnail::black());
             top.as_bytes_mut().fill(200);
             let out = policy
-                .step(PolicyInput {
-                    top: &top,
-                    bottom: &bottom,
-                })
+                .step(PolicyInput::at_rest(&top, &bottom))
                 .expect("a step");
             assert_eq!([out.forward, out.left, out.turn], REPLACEMENT, "{engine:?}");
         }

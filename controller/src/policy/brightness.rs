@@ -56,10 +56,7 @@ mod tests {
         let mut bottom = BottomThumbnail::black();
         bottom.as_bytes_mut().fill(255);
         let mut policy = BrightnessPolicy::default();
-        let input = PolicyInput {
-            top: &top,
-            bottom: &bottom,
-        };
+        let input = PolicyInput::at_rest(&top, &bottom);
         let first = policy.step(input).expect("step");
         let second = policy.step(input).expect("step");
         assert_eq!(first.forward, 1.0);

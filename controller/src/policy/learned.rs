@@ -22,7 +22,8 @@ use tract_onnx::prelude::{TValue, Tensor};
 use super::commitment::HypothesisCommitment;
 use super::engine::{CompiledNetwork, Isa};
 use super::manifest::{
-    BOTTOM_SHAPE, COMMAND_SHAPE, Normalisation, PolicyKind, PolicyManifest, TOP_SHAPE,
+    BOTTOM_SHAPE, COMMAND_SHAPE, Normalisation, PREVIOUS_SHAPE, PolicyKind, PolicyManifest,
+    TOP_SHAPE,
 };
 use super::network_input::write_network_input;
 use super::onnx_network::{Interface, OnnxNetwork, Port, zero_tensor};
@@ -99,19 +100,28 @@ impl std::fmt::Display for EngineReport {
     }
 }
 
-/// The network inputs made from the thumbnails as the manifest's normalisation says.
+/// The network inputs made from the thumbnails as the manifest's normalisation says, and
+/// the last command sent where the network reads it.
 #[derive(Debug)]
 struct ThumbnailTensors {
     top: Arc<Tensor>,
     bottom: Arc<Tensor>,
+    previous: Option<Arc<Tensor>>,
     normalisation: Normalisation,
 }
 
 impl ThumbnailTensors {
-    fn new(manifest: &PolicyManifest, path: &Path) -> Result<Self, PolicyLoadError> {
+    fn new(
+        manifest: &PolicyManifest,
+        path: &Path,
+        previous: bool,
+    ) -> Result<Self, PolicyLoadError> {
         Ok(Self {
             top: zero_tensor(path, &TOP_SHAPE)?,
             bottom: zero_tensor(path, &BOTTOM_SHAPE)?,
+            previous: previous
+                .then(|| zero_tensor(path, &PREVIOUS_SHAPE))
+                .transpose()?,
             normalisation: manifest.normalisation,
         })
     }
@@ -131,6 +141,14 @@ impl ThumbnailTensors {
                 .map_err(|error| PolicyError::Inference(format!("{error:#}")))?;
             write_network_input(&self.normalisation, pixels, values);
         }
+        if let Some(tensor) = &mut self.previous {
+            let mut view = Arc::make_mut(tensor)
+                .try_as_plain_ram_mut()
+                .map_err(|error| PolicyError::Inference(format!("{error:#}")))?;
+            view.as_slice_mut::<f32>()
+                .map_err(|error| PolicyError::Inference(format!("{error:#}")))?
+                .copy_from_slice(&input.previous.as_array());
+        }
         Ok(())
     }
 
@@ -138,6 +156,10 @@ impl ThumbnailTensors {
         match port {
             Port::Top => Some(TValue::from_const(Arc::clone(&self.top))),
             Port::Bottom => Some(TValue::from_const(Arc::clone(&self.bottom))),
+            Port::Previous => self
+                .previous
+                .as_ref()
+                .map(|tensor| TValue::from_const(Arc::clone(tensor))),
             _ => None,
         }
     }
@@ -171,7 +193,8 @@ fn command_of(outputs: &[(Port, TValue)]) -> Result<PolicyOutput, PolicyError> {
 }
 
 fn network_feed(tensors: &ThumbnailTensors) -> impl Fn(Port) -> TValue + '_ {
-    // Every port a CNN network asks for is a thumbnail port (checked at load).
+    // Every port a CNN network asks for is a thumbnail port or the last command, whose
+    // tensor exists exactly when the network has that input (checked at load).
     move |port| {
         tensors
             .value(port)
@@ -185,6 +208,8 @@ struct PortNames {
     top: String,
     bottom: String,
     command: String,
+    /// The input fed the last command sent, where the network has one.
+    previous: Option<String>,
     /// h_in, c_in, h_out, c_out of a recurrent network.
     recurrent: Option<[String; 4]>,
     /// A modal CNN's hypothesis count and its commands and logits outputs, when the
@@ -224,6 +249,9 @@ impl Network {
             (Port::Top, names.top.as_str(), &TOP_SHAPE[..]),
             (Port::Bottom, names.bottom.as_str(), &BOTTOM_SHAPE[..]),
         ];
+        if let Some(previous) = &names.previous {
+            inputs.push((Port::Previous, previous.as_str(), &PREVIOUS_SHAPE[..]));
+        }
         let count = names.hypotheses.as_ref().map_or(0, |h| h.0);
         let (commands_shape, logits_shape) = ([1, count, 3], [1, count]);
         let mut outputs = vec![(Port::Command, names.command.as_str(), &COMMAND_SHAPE[..])];
@@ -302,7 +330,7 @@ impl Network {
         };
         let network = Self::Tract {
             network,
-            tensors: ThumbnailTensors::new(manifest, path)?,
+            tensors: ThumbnailTensors::new(manifest, path, names.previous.is_some())?,
             state,
         };
         Ok((
@@ -371,6 +399,15 @@ impl Network {
                         "a thumbnail input of the plan is missing",
                     ))?;
                     write_network_input(normalisation, pixels, values);
+                }
+                if let Some(name) = &names.previous {
+                    network
+                        .input_mut(name)
+                        .filter(|values| values.len() == PREVIOUS_SHAPE[1])
+                        .ok_or(PolicyError::Engine(
+                            "the last command's input of the plan is missing",
+                        ))?
+                        .copy_from_slice(&input.previous.as_array());
                 }
                 // The plan ran once at load (`engine_agrees_with_tract`) and its shapes do not
                 // change; a panic here all the same is a failed inference (a stop), not a
@@ -441,7 +478,8 @@ fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
 }
 
 /// Runs `compiled` and tract's `network` on the same two pseudo-random inputs (thumbnails
-/// of random pixels through the manifest's normalisation; random recurrent states in [-1, 1]) and
+/// of random pixels through the manifest's normalisation; random recurrent states and last
+/// commands in [-1, 1]) and
 /// compares every output the controller reads. Leaves the compiled plan's recurrent inputs
 /// at zero, as at an episode's start.
 fn engine_agrees_with_tract(
@@ -477,6 +515,9 @@ fn engine_agrees_with_tract(
                 .collect()
         };
         let (hidden, cell) = (random_state(), random_state());
+        let previous: Vec<f32> = (0..PREVIOUS_SHAPE[1])
+            .map(|_| (next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0)
+            .collect();
         let mut feeds = vec![
             (Port::Top, names.top.as_str(), &TOP_SHAPE[..], top),
             (
@@ -486,6 +527,9 @@ fn engine_agrees_with_tract(
                 bottom,
             ),
         ];
+        if let Some(name) = &names.previous {
+            feeds.push((Port::Previous, name.as_str(), &PREVIOUS_SHAPE[..], previous));
+        }
         let state_shape = [1, 1, units];
         let mut expected = vec![(Port::Command, names.command.as_str())];
         if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent {
@@ -566,6 +610,7 @@ fn port_names(manifest: &PolicyManifest) -> PortNames {
         top: manifest.inputs.top.name.clone(),
         bottom: manifest.inputs.bottom.name.clone(),
         command: manifest.outputs.command.name.clone(),
+        previous: manifest.inputs.previous.as_ref().map(|p| p.name.clone()),
         recurrent: manifest.recurrent.as_ref().map(|r| {
             [
                 r.h_in.clone(),
@@ -876,10 +921,7 @@ mod tests {
         let (top, bottom) = (TopThumbnail::black(), BottomThumbnail::black());
         for _ in 0..3 {
             policy
-                .step(PolicyInput {
-                    top: &top,
-                    bottom: &bottom,
-                })
+                .step(PolicyInput::at_rest(&top, &bottom))
                 .expect("step");
             // One reference here, one in the policy: tract kept none.
             assert_eq!(

@@ -19,6 +19,8 @@ pub const MANIFEST_FORMAT: u32 = 1;
 pub const TOP_SHAPE: [usize; 4] = [1, 1, 120, 160];
 pub const BOTTOM_SHAPE: [usize; 4] = [1, 1, 60, 80];
 pub const COMMAND_SHAPE: [usize; 2] = [1, 3];
+/// The last command sent, as a network input (`[inputs] previous`): normalised, clamped.
+pub const PREVIOUS_SHAPE: [usize; 2] = [1, 3];
 
 /// The three policy kinds of the paper.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
@@ -120,6 +122,11 @@ pub struct Normalisation {
 pub struct Inputs {
     pub top: TensorSpec,
     pub bottom: TensorSpec,
+    /// The command the controller sent last, fed back as a third input `[1, 3]`: each
+    /// component normalised and clamped to [-1, 1] as the walk received it, a stop where the
+    /// controller sent a stop (a failed step, silent cameras), zero at an episode's start.
+    /// A CNN only; absent: the network sees the thumbnails alone.
+    pub previous: Option<TensorSpec>,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
@@ -330,6 +337,22 @@ impl PolicyManifest {
         }
         check_shape("inputs.top", &self.inputs.top, &TOP_SHAPE)?;
         check_shape("inputs.bottom", &self.inputs.bottom, &BOTTOM_SHAPE)?;
+        if let Some(previous) = &self.inputs.previous {
+            check_shape("inputs.previous", previous, &PREVIOUS_SHAPE)?;
+            if self.kind != PolicyKind::Cnn {
+                return Err(format!(
+                    "inputs.previous belongs to a CNN, not to an {}",
+                    self.kind
+                ));
+            }
+            let (top, bottom) = (&self.inputs.top.name, &self.inputs.bottom.name);
+            if previous.name == *top || previous.name == *bottom {
+                return Err(format!(
+                    "inputs.previous ({:?}) must name another input than the thumbnails",
+                    previous.name
+                ));
+            }
+        }
         check_shape("outputs.command", &self.outputs.command, &COMMAND_SHAPE)?;
         let scale = self.normalisation.scale;
         if !(scale.is_finite() && scale > 0.0) {
@@ -654,6 +677,42 @@ activation_scales = { "top" = 0.0039, "/features/Concat_output_0" = 0.0052 }
         let error = parse(&CNN.replace("epochs = 3", "epochs = 3\nlearning_rate = 0.1"))
             .expect_err("unknown field");
         assert!(error.contains("learning_rate"), "{error}");
+    }
+
+    #[test]
+    fn the_last_command_input_is_a_cnns_with_the_commands_shape() {
+        let with = |spec: &str| {
+            CNN.replace(
+                "bottom = { name = \"bottom\", shape = [1, 1, 60, 80] }",
+                &format!("bottom = {{ name = \"bottom\", shape = [1, 1, 60, 80] }}\n{spec}"),
+            )
+        };
+        let manifest = parse(&with("previous = { name = \"previous\", shape = [1, 3] }"))
+            .expect("a CNN with the last command");
+        assert_eq!(
+            manifest.inputs.previous.map(|p| p.name),
+            Some("previous".to_owned())
+        );
+        assert_eq!(parse(CNN).expect("without").inputs.previous, None);
+        let error = parse(&with("previous = { name = \"previous\", shape = [1, 4] }"))
+            .expect_err("wrong shape");
+        assert!(
+            error.contains("inputs.previous (\"previous\") has shape [1, 4]"),
+            "{error}"
+        );
+        let error = parse(&with("previous = { name = \"bottom\", shape = [1, 3] }"))
+            .expect_err("a thumbnail's name");
+        assert!(
+            error.contains("another input than the thumbnails"),
+            "{error}"
+        );
+        let rcnn = with("previous = { name = \"previous\", shape = [1, 3] }")
+            .replace("\"cnn\"", "\"rcnn\"");
+        let error = parse(&rcnn).expect_err("an R-CNN");
+        assert!(
+            error.contains("belongs to a CNN, not to an R-CNN"),
+            "{error}"
+        );
     }
 
     #[test]

@@ -23,13 +23,29 @@ pub use manifest::{PolicyKind, PolicyManifest};
 
 use std::path::PathBuf;
 
+use crate::speed_command::SpeedCommand;
 use crate::thumbnail::{BottomThumbnail, TopThumbnail};
 
-/// What a policy sees at one step: the newest thumbnail of each camera, owned by the caller.
+/// What a policy sees at one step: the newest thumbnail of each camera, owned by the caller,
+/// and the command the controller sent last (a stop at an episode's start and wherever it
+/// sent a stop). Only a network whose manifest names `[inputs] previous` reads `previous`.
 #[derive(Clone, Copy, Debug)]
 pub struct PolicyInput<'a> {
     pub top: &'a TopThumbnail,
     pub bottom: &'a BottomThumbnail,
+    pub previous: SpeedCommand,
+}
+
+impl<'a> PolicyInput<'a> {
+    /// The thumbnails with a stop as the last command: an episode's first step, or a policy
+    /// that reads no last command.
+    pub fn at_rest(top: &'a TopThumbnail, bottom: &'a BottomThumbnail) -> Self {
+        Self {
+            top,
+            bottom,
+            previous: SpeedCommand::STOP,
+        }
+    }
 }
 
 /// A policy's raw answer in normalised units, before the controller clamps it and turns

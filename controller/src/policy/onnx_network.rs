@@ -19,6 +19,8 @@ pub(crate) enum Port {
     Top,
     Bottom,
     Command,
+    /// The command the controller sent last, `[1, 3]` (in).
+    Previous,
     /// LSTM hidden state, in or out.
     Hidden,
     /// LSTM cell state, in or out.

@@ -6,7 +6,7 @@ use std::fs;
 use std::path::PathBuf;
 use std::process::Command;
 
-use dribble_controller::{BottomThumbnail, TopThumbnail};
+use dribble_controller::{BottomThumbnail, SpeedCommand, TopThumbnail};
 
 /// This package's directory: the one cargo names when it runs the test (`CARGO_MANIFEST_DIR`
 /// in the environment: the checkout under test, even when its build directory was shared with
@@ -27,6 +27,9 @@ pub struct Reference {
     pub thumbnails: Vec<(Box<TopThumbnail>, Box<BottomThumbnail>)>,
     pub commands: Vec<[f32; 3]>,
     pub clusters: Option<Vec<usize>>,
+    /// The last command fed at each step, for a network that reads it (`previous.f32`);
+    /// a stop at every step where the fixture has none.
+    pub previous: Vec<SpeedCommand>,
 }
 
 pub fn reference(kind: &str) -> Reference {
@@ -49,15 +52,24 @@ pub fn reference(kind: &str) -> Reference {
             )
         })
         .collect();
-    let raw = fs::read(directory.join("commands.f32")).expect("commands.f32");
-    let commands = raw
-        .chunks_exact(12)
-        .map(|c| {
-            let value = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
-            [value(0), value(4), value(8)]
-        })
-        .collect::<Vec<_>>();
+    let triples = |raw: Vec<u8>| {
+        raw.chunks_exact(12)
+            .map(|c| {
+                let value = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+                [value(0), value(4), value(8)]
+            })
+            .collect::<Vec<_>>()
+    };
+    let commands = triples(fs::read(directory.join("commands.f32")).expect("commands.f32"));
     assert_eq!(commands.len(), steps);
+    let previous = match fs::read(directory.join("previous.f32")) {
+        Ok(raw) => triples(raw)
+            .into_iter()
+            .map(|[f, l, t]| SpeedCommand::new(f, l, t).expect("a finite last command"))
+            .collect(),
+        Err(_) => vec![SpeedCommand::STOP; steps],
+    };
+    assert_eq!(previous.len(), steps);
     let clusters = meta.get("clusters").map(|list| {
         list.as_array()
             .expect("clusters list")
@@ -69,6 +81,7 @@ pub fn reference(kind: &str) -> Reference {
         thumbnails,
         commands,
         clusters,
+        previous,
     }
 }
 

@@ -37,7 +37,7 @@ fuzz_target!(
             match OnnxPolicy::load_with(&manifest, options) {
                 Ok((mut policy, _)) => {
                     let (top, bottom) = (TopThumbnail::black(), BottomThumbnail::black());
-                    let _ = policy.step(PolicyInput { top: &top, bottom: &bottom });
+                    let _ = policy.step(PolicyInput::at_rest(&top, &bottom));
                 }
                 Err(error) => assert!(error.to_string().contains("dribble-fuzz-onnx"), "{error}"),
             }
