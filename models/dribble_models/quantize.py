@@ -121,12 +121,16 @@ def rows_hash(rows: list[tuple[int, int]]) -> str:
     return hashlib.sha256(json.dumps(rows).encode()).hexdigest()
 
 
-def _inputs(episode: dataset.Episode, t: int, standardise: bool) -> dict[str, np.ndarray]:
-    """What the controller feeds the network at row `t` (`contract.network_input`)."""
-    return {
+def _inputs(episode: dataset.Episode, t: int, standardise: bool, previous: bool = False) -> dict[str, np.ndarray]:
+    """What the controller feeds the network at row `t` (`contract.network_input`), and for a
+    network that reads it the command executed at the row before (`Episode.previous`)."""
+    feed = {
         contract.TOP_INPUT: contract.network_input(episode.top[t][None, None], standardise),
         contract.BOTTOM_INPUT: contract.network_input(episode.bottom[t][None, None], standardise),
     }
+    if previous:
+        feed[contract.PREVIOUS_INPUT] = episode.previous[t][None].astype(np.float32)
+    return feed
 
 
 class Frames(CalibrationDataReader):
@@ -146,11 +150,11 @@ class Frames(CalibrationDataReader):
         self.position = 0
 
 
-def feeds_for(kind: str, network: Path, train: dataset.Dataset, rows: list[tuple[int, int]], units: int, standardise: bool = False) -> list[dict]:
+def feeds_for(kind: str, network: Path, train: dataset.Dataset, rows: list[tuple[int, int]], units: int, standardise: bool = False, previous: bool = False) -> list[dict]:
     """Each row's network inputs; the R-CNN's with the state its float network carries there."""
     by_seed = {e.seed: e for e in train.episodes}
     if kind != "rcnn":
-        return [_inputs(by_seed[s], t, standardise) for s, t in rows]
+        return [_inputs(by_seed[s], t, standardise, previous) for s, t in rows]
     session = ort.InferenceSession(str(network), providers=["CPUExecutionProvider"])
     wanted: dict[int, set[int]] = {}
     for s, t in rows:
@@ -301,7 +305,8 @@ def quantize_policy(policy: Path, train_dir: Path, out: Path, frames: int = 256,
             routed = [(s, t) for s, t in rows if nearest_cluster(by_seed[s].top[t], by_seed[s].bottom[t], centroids) == index]
             network_rows = routed if len(routed) >= 16 else rows
         standardise = bool(manifest.get("normalisation", {}).get("standardise", False))
-        feeds.append(feeds_for(kind, policy / name, train, network_rows, units, standardise))
+        previous = "previous" in manifest.get("inputs", {})
+        feeds.append(feeds_for(kind, policy / name, train, network_rows, units, standardise, previous))
     calibration = {
         "calibration_dataset_hash": train.content_hash,
         "calibration_frames": len(rows),

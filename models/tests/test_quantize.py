@@ -12,6 +12,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 import tomllib
+import torch
 
 from dribble_models import contract
 from dribble_models.export import export_policy
@@ -160,4 +161,30 @@ def test_the_controller_reads_the_int8_manifest(tmp_path, rng):
     assert said.returncode == 0, said.stderr
     assert "int8" in said.stdout and "2 forward pass(es)" in said.stdout
     # The compiled engine runs it in integers (not tract).
+    assert "int8)" in said.stdout, said.stdout
+
+
+def test_a_cnn_reading_its_last_command_is_calibrated_on_it_and_runs_in_integers(tmp_path, rng):
+    """The calibration feeds give the network the command executed before each row; the
+    controller's compiled engine runs the int8 file in integers, its check against tract
+    made on random last commands."""
+    from dribble_models.networks import PreviousCommandCNN
+
+    train = write_dataset(tmp_path / "train", [1, 2], 8, rng)
+    model = PreviousCommandCNN.from_cnn(CNN())
+    with torch.no_grad():
+        model.hidden.weight[:, -3:] = torch.from_numpy(rng.normal(0, 0.5, (128, 3)).astype(np.float32))
+    out = tmp_path / "int8"
+    quantize_policy(float_policy(tmp_path, model, train), train, out, frames=8)
+    manifest = tomllib.loads((out / "policy.toml").read_text())
+    assert manifest["inputs"]["previous"] == {"name": "previous", "shape": [1, 3]}
+    assert [i.name for i in onnx.load(str(out / "policy.onnx")).graph.input] == ["top", "bottom", "previous"]
+    controller = Path(dribble_binary()).with_name("dribble-controller")
+    said = subprocess.run(
+        [str(controller), "forward", "--no-peak", "--steps", "2", "--policy", str(out / "policy.toml")],
+        capture_output=True,
+        text=True,
+        env=os.environ | {"RUST_LOG": "warn"},
+    )
+    assert said.returncode == 0, said.stderr
     assert "int8)" in said.stdout, said.stdout
