@@ -146,18 +146,22 @@ def test_the_committed_int8_fixture_is_the_cnn_fixture_quantized_and_answers_nea
     assert len(quantized) == 5  # four convolutions and the hidden dense layer
 
 
-def test_the_controller_reads_the_int8_manifest(tmp_path, rng):
-    binary = dribble_binary()
-    train = write_dataset(tmp_path / "train", [1, 2], 8, rng)
-    out = tmp_path / "int8"
-    quantize_policy(float_policy(tmp_path, CNN(), train), train, out, frames=8)
-    controller = Path(binary).with_name("dribble-controller")
-    said = subprocess.run(
-        [str(controller), "forward", "--no-peak", "--steps", "2", "--policy", str(out / "policy.toml")],
+def two_forward_passes(manifest: Path) -> subprocess.CompletedProcess:
+    """`dribble-controller forward` of the policy at `manifest`, two passes, warnings only."""
+    controller = Path(dribble_binary()).with_name("dribble-controller")
+    return subprocess.run(
+        [str(controller), "forward", "--no-peak", "--steps", "2", "--policy", str(manifest)],
         capture_output=True,
         text=True,
         env=os.environ | {"RUST_LOG": "warn"},
     )
+
+
+def test_the_controller_reads_the_int8_manifest(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2], 8, rng)
+    out = tmp_path / "int8"
+    quantize_policy(float_policy(tmp_path, CNN(), train), train, out, frames=8)
+    said = two_forward_passes(out / "policy.toml")
     assert said.returncode == 0, said.stderr
     assert "int8" in said.stdout and "2 forward pass(es)" in said.stdout
     # The compiled engine runs it in integers (not tract).
@@ -179,12 +183,6 @@ def test_a_cnn_reading_its_last_command_is_calibrated_on_it_and_runs_in_integers
     manifest = tomllib.loads((out / "policy.toml").read_text())
     assert manifest["inputs"]["previous"] == {"name": "previous", "shape": [1, 3]}
     assert [i.name for i in onnx.load(str(out / "policy.onnx")).graph.input] == ["top", "bottom", "previous"]
-    controller = Path(dribble_binary()).with_name("dribble-controller")
-    said = subprocess.run(
-        [str(controller), "forward", "--no-peak", "--steps", "2", "--policy", str(out / "policy.toml")],
-        capture_output=True,
-        text=True,
-        env=os.environ | {"RUST_LOG": "warn"},
-    )
+    said = two_forward_passes(out / "policy.toml")
     assert said.returncode == 0, said.stderr
     assert "int8)" in said.stdout, said.stdout
