@@ -726,7 +726,7 @@ class Training:
             **({"distill_camera_clean": True} if a.distill_camera_clean else {}),
             **({"validate_distilled": True} if a.validate_distilled else {}),
             **({"one_way_detour": True} if a.one_way_detour else {}),
-            **({"previous_command": {"noise": a.previous_noise}} if a.previous_command else {}),
+            **({"previous_command": {"noise": a.previous_noise, **({"dropout": a.previous_dropout} if a.previous_dropout > 0 else {})}} if a.previous_command else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
         }
 
@@ -781,6 +781,12 @@ class Training:
         previous = torch.from_numpy(self.rows.previous[index])
         if self.args.previous_noise > 0:
             previous = previous + self.args.previous_noise * torch.randn(previous.shape, generator=generator)
+        if self.args.previous_dropout > 0:
+            # A stop in place of the last command on a share of the rows: where the robot
+            # stands (an episode's start, after a stop) its images must say what to do, or a
+            # network that copies its last command never starts walking.
+            dropped = torch.rand(len(previous), 1, generator=generator) < self.args.previous_dropout
+            previous = torch.where(dropped, torch.zeros_like(previous), previous)
         return previous.to(self.device)
 
     def epoch_rows(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray]]:
@@ -1057,6 +1063,7 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: b
         parts.append(
             f"the last command sent is a third input ([inputs] previous; PreviousCommandCNN): on each row the command executed "
             f"at the row before, perturbed on training rows by Gaussian noise of {args.previous_noise:g}"
+            + (f", a stop in its place on {args.previous_dropout:.0%} of them" if args.previous_dropout > 0 else "")
         )
     if args.one_way_detour:
         parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
@@ -1087,6 +1094,7 @@ class TrainingConfig:
     one_way_detour: bool = False
     previous_command: bool = False
     previous_noise: float = 0.2
+    previous_dropout: float = 0.0
     test_dataset: Path | None = None
     epochs: int = 0
     epoch_fraction: float = 1.0
@@ -1138,6 +1146,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--one-way-detour", action="store_true", help="where the teacher walks around the ball to get behind it, on the side of the ball-to-goal line it stands on (a side the images often cannot show), label the rows with the same walk around the ball always clockwise; training and validation rows (dribble_models.one_way_detour)")
     parser.add_argument("--previous-command", action="store_true", help="CNN: the network also reads the command the controller sent last (a third input, [inputs] previous: beyond the paper), fed on each row the command the recording executed at the row before; a one-output CNN start begins as its own function, the new weights zero (PreviousCommandCNN)")
     parser.add_argument("--previous-noise", type=float, default=0.2, metavar="SIGMA", help="with --previous-command: Gaussian noise on the last command of training rows, in normalised units (default 0.2)")
+    parser.add_argument("--previous-dropout", type=float, default=0.0, metavar="SHARE", help="with --previous-command: this share of training rows is given a stop as the last command, so that a standing robot's images say what to do (against the copycat that never starts; default 0)")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")
@@ -1194,6 +1203,10 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--previous-command trains a one-output CNN (--kind cnn, --modes 1, no --prune-from)")
     if not args.previous_noise >= 0:
         parser.error("--previous-noise is a standard deviation, not negative")
+    if not 0.0 <= args.previous_dropout <= 1.0:
+        parser.error("--previous-dropout is a share of the rows, in [0, 1]")
+    if (args.previous_noise != 0.2 or args.previous_dropout > 0) and not args.previous_command:
+        parser.error("--previous-noise and --previous-dropout shape --previous-command's last command: give it")
     if args.prune_from is not None and args.init_from is not None:
         parser.error("--prune-from and --init-from are two starts: name one")
     return TrainingConfig.from_namespace(args)

@@ -639,3 +639,21 @@ def test_a_cnn_reading_its_last_command_is_given_what_was_executed_before_each_r
     assert abs(robot["error"] - trainer["error"]) < 1e-4, (robot["error"], trainer["error"])
     with pytest.raises(SystemExit):
         parse_args(["--kind", "rcnn", "--previous-command", "--dataset", str(data), "--out", str(out)])
+
+
+def test_the_last_command_is_perturbed_and_dropped_on_training_rows_as_asked(tmp_path, rng):
+    data = write_dataset(tmp_path / "train", [1, 2], 40, rng)
+    common = ["--kind", "cnn", "--previous-command", "--dataset", str(data), "--out", str(tmp_path / "x"), "--validation-episodes", "1"]
+    index = np.arange(40)
+    exact = Training(parse_args([*common, "--previous-noise", "0"]), ds.load(data))
+    np.testing.assert_array_equal(exact.batch_previous(index, torch.Generator().manual_seed(0)).numpy(), exact.rows.previous[index])
+    dropped = Training(parse_args([*common, "--previous-noise", "0", "--previous-dropout", "0.5"]), ds.load(data))
+    given = dropped.batch_previous(index, torch.Generator().manual_seed(0)).numpy()
+    stops = np.all(given == 0, axis=1) & np.any(dropped.rows.previous[index] != 0, axis=1)
+    kept = np.all(given == dropped.rows.previous[index], axis=1)
+    assert np.all(stops | kept) and 8 < stops.sum() < 32, stops.sum()
+    noisy = Training(parse_args(common), ds.load(data)).batch_previous(index, torch.Generator().manual_seed(0)).numpy()
+    assert 0.1 < np.std(noisy - exact.rows.previous[index]) < 0.3  # the default noise, 0.2
+    assert "a stop in its place on 50% of them" in notes_of(parse_args([*common, "--previous-dropout", "0.5"]))
+    with pytest.raises(SystemExit):
+        parse_args(["--kind", "cnn", "--previous-dropout", "0.5", "--dataset", str(data), "--out", "o"])
