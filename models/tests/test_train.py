@@ -581,6 +581,7 @@ def test_a_folded_start_answers_as_before_on_a_typical_thumbnail(rng):
             bottom=np.repeat(bottom_base[None], n, axis=0),
             command=np.zeros((n, 3), np.float32),
             phase=np.zeros(n, np.uint8),
+            previous=np.zeros((n, 3), np.float32),
         )
 
     top = rng.integers(40, 200, (120, 160), dtype=np.uint8)
