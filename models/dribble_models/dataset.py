@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .command_metric import sent_commands
+
 PHASES = ("search", "approach", "align", "dribble")
 
 
@@ -98,9 +100,7 @@ def executed_before(executed: np.ndarray) -> np.ndarray:
     controller clamps what it sends (a non-finite one a stop), zero before the first."""
     executed = np.asarray(executed, dtype=np.float32)
     previous = np.zeros_like(executed)
-    before = executed[:-1]
-    finite = np.all(np.isfinite(before), axis=1, keepdims=True)
-    previous[1:] = np.where(finite, np.clip(np.nan_to_num(before), -1.0, 1.0), 0.0)
+    previous[1:] = sent_commands(executed[:-1])
     return previous
 
 

@@ -126,7 +126,7 @@ class PreviousCommandCNN(nn.Module):
     stands (docs/src/history/previous-command.md). The command it sent last is known on the
     robot and breaks the tie the way it was already moving. `previous` is each component
     normalised and clamped to [-1, 1], a stop where the controller sent one, zero at an
-    episode's start (`dribble_models.previous_command.previous_commands` for recorded rows).
+    episode's start (`Episode.previous` for recorded rows).
     384 multiply-adds more than the CNN."""
 
     def __init__(self, features: CameraFeatures | None = None) -> None:
