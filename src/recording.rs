@@ -5,6 +5,8 @@
 use std::path::PathBuf;
 
 use anyhow::ensure;
+use dribble_controller::policy::Engine;
+use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_sim::dataset::{DatasetIndex, EpisodeEntry, EpisodeRecording, episode_file};
 use dribble_sim::expert::ExpertConfig;
@@ -12,6 +14,7 @@ use dribble_sim::runner::{EpisodeConfig, EpisodeResult};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::commands::record::RecordArgs;
+use crate::evaluation::journal::RunSettings;
 
 pub(crate) fn episode_progress(episodes: usize) -> ProgressBar {
     let progress = ProgressBar::new(episodes as u64);
@@ -78,9 +81,30 @@ pub(crate) fn configuration(
         simulator["camera_samples"] = config.multisampling.samples().into();
     }
     let expert = serde_json::json!(format!("{expert_config:?}"));
-    let driver = policy.map(|(path, manifest)| {
-        serde_json::json!({
+    let driver = policy
+        .map(|(path, manifest)| driver_record(args, path, manifest))
+        .transpose()?;
+    Ok((simulator, expert, driver))
+}
+
+/// Who drove a policy-driven recording. A closed loop's states are a function of the engine's
+/// arithmetic too (each instruction set adds up in its own order), so the record names the
+/// network's bytes, the engine and the instruction set besides the mixing rule: a round
+/// recorded again reproduces its hash only where all of them are the same.
+fn driver_record(
+    args: &RecordArgs,
+    path: &std::path::Path,
+    manifest: &PolicyManifest,
+) -> anyhow::Result<serde_json::Value> {
+    // tract has no instruction set to choose; the compiled engine runs the widest this CPU
+    // has unless one is named.
+    let isa = (args.controller.engine == Engine::Compiled)
+        .then(|| args.controller.isa.unwrap_or_else(Isa::detect).name());
+    Ok(serde_json::json!({
             "policy": path.display().to_string(),
+            "policy_hash": RunSettings::policy_hash(path)?,
+            "engine": args.controller.engine.name(),
+            "isa": isa,
             "kind": manifest.kind.to_string(),
             "trained_on": manifest.training.dataset,
             "dataset_hash": manifest.training.dataset_hash,
@@ -88,9 +112,7 @@ pub(crate) fn configuration(
             "beta": args.beta,
             "mixing": "per computed command, the expert's command is executed with probability \
                        beta (held until the next computed command); draws seeded by the episode",
-        })
-    });
-    Ok((simulator, expert, driver))
+    }))
 }
 
 /// Writes the episode's file and lists it in the index (saved at once, so that an
@@ -232,5 +254,82 @@ pub(crate) fn config_differences(
         }
         (a, b) if a != b => out.push(format!("{path}: recorded {a}, now {b}")),
         _ => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Command {
+        #[command(flatten)]
+        record: RecordArgs,
+    }
+
+    fn record_args(extra: &[&str], out: &std::path::Path) -> RecordArgs {
+        let policy = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/models/fixtures/cnn/policy.toml"
+        );
+        let out = out.to_str().expect("utf-8 path");
+        let mut words = vec!["record", "--driver", policy, "--label-with", "teacher"];
+        words.extend_from_slice(&["--beta", "0.5", "--out", out]);
+        words.extend_from_slice(extra);
+        Command::parse_from(words).record
+    }
+
+    fn driver_of(args: &RecordArgs) -> serde_json::Value {
+        let path = PathBuf::from(&args.driver);
+        let manifest = PolicyManifest::load(&path).expect("the fixture loads");
+        let (_, _, driver) = configuration(
+            args,
+            &EpisodeConfig::default(),
+            &ExpertConfig::default(),
+            Some(&(path, manifest)),
+        )
+        .expect("a configuration");
+        driver.expect("a policy drove")
+    }
+
+    #[test]
+    fn a_policy_driven_recording_names_the_network_engine_and_instruction_set() {
+        let out =
+            std::env::temp_dir().join(format!("dribble-driver-record-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let portable = record_args(&["--isa", "portable"], &out);
+        let driver = driver_of(&portable);
+        assert_eq!(driver["engine"], "compiled");
+        assert_eq!(driver["isa"], "portable");
+        let hash = driver["policy_hash"].as_str().expect("a hash");
+        assert_eq!(hash.len(), 64, "{hash}");
+        let tract = driver_of(&record_args(&["--engine", "tract"], &out));
+        assert_eq!(tract["engine"], "tract");
+        assert!(tract["isa"].is_null(), "tract chooses no instruction set");
+        let widest = driver_of(&record_args(&[], &out));
+        assert_eq!(
+            widest["isa"],
+            Isa::detect().name(),
+            "the widest this CPU runs"
+        );
+
+        // A round recorded on one instruction set is not resumed on another.
+        std::fs::create_dir_all(&out).expect("scratch");
+        let (simulator, expert, _) = configuration(
+            &portable,
+            &EpisodeConfig::default(),
+            &ExpertConfig::default(),
+            None,
+        )
+        .expect("a configuration");
+        let index = open_index(&portable, simulator.clone(), expert.clone(), Some(driver))
+            .expect("a new index");
+        index.save(&out).expect("saved");
+        let sse2 = record_args(&["--isa", "sse2"], &out);
+        let refused = open_index(&sse2, simulator, expert, Some(driver_of(&sse2)))
+            .expect_err("another instruction set");
+        assert!(refused.to_string().contains("driver.isa"), "{refused}");
+        let _ = std::fs::remove_dir_all(&out);
     }
 }

@@ -606,6 +606,10 @@ class Training:
                 fold_typical_level(self.model, self.rows, np.random.default_rng([args.seed, 3]))
         # After the start: the run's choice, whatever the model it started from did.
         set_standardise(self.model, args.standardise_input)
+        if args.keep_branches:
+            # The start's camera branches as they are (a folded start's re-expression
+            # included): only the dense layers are given to the optimizer.
+            self.model.features.requires_grad_(False)
         if args.prune_from is not None:
             if self.kind != "cnn" or args.modes != 1:
                 raise DatasetError("--prune-from starts a one-output CNN (--kind cnn, --modes 1)")
@@ -728,6 +732,7 @@ class Training:
             **({"one_way_detour": True} if a.one_way_detour else {}),
             **({"previous_command": {"noise": a.previous_noise, **({"dropout": a.previous_dropout} if a.previous_dropout > 0 else {})}} if a.previous_command else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
+            **({"keep_branches": True} if a.keep_branches else {}),
         }
 
     def save(self, path: Path) -> None:
@@ -994,7 +999,7 @@ def lineage_of(args: "TrainingConfig") -> Lineage | None:
 
     started = None
     if args.init_from is not None:
-        started = reference(args.init_from)
+        started = reference(args.init_from, "camera branches kept as they are, dense layers trained" if args.keep_branches else None)
     elif args.prune_from is not None:
         started = reference(args.prune_from, "pruned to these filters, largest L1 norms kept")
     distilled = reference(args.distill_from) if args.distill_from is not None else None
@@ -1065,6 +1070,8 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: b
             f"at the row before, perturbed on training rows by Gaussian noise of {args.previous_noise:g}"
             + (f", a stop in its place on {args.previous_dropout:.0%} of them" if args.previous_dropout > 0 else "")
         )
+    if args.keep_branches:
+        parts.append("the start's camera branches kept as they are, only the dense layers trained")
     if args.one_way_detour:
         parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
     if args.features_from is not None:
@@ -1095,6 +1102,7 @@ class TrainingConfig:
     previous_command: bool = False
     previous_noise: float = 0.2
     previous_dropout: float = 0.0
+    keep_branches: bool = False
     test_dataset: Path | None = None
     epochs: int = 0
     epoch_fraction: float = 1.0
@@ -1147,6 +1155,7 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--previous-command", action="store_true", help="CNN: the network also reads the command the controller sent last (a third input, [inputs] previous: beyond the paper), fed on each row the command the recording executed at the row before; a one-output CNN start begins as its own function, the new weights zero (PreviousCommandCNN)")
     parser.add_argument("--previous-noise", type=float, default=0.2, metavar="SIGMA", help="with --previous-command: Gaussian noise on the last command of training rows, in normalised units (default 0.2)")
     parser.add_argument("--previous-dropout", type=float, default=0.0, metavar="SHARE", help="with --previous-command: this share of training rows is given a stop as the last command, so that a standing robot's images say what to do (against the copycat that never starts; default 0)")
+    parser.add_argument("--keep-branches", action="store_true", help="CNN with --init-from: the start's camera branches stay as they are and only the dense layers learn (with --previous-command, the new input's weights too), so the network keeps reading its images as the start did; augmentation still reaches the branches' input")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
     parser.add_argument("--epoch-fraction", type=float, default=1.0, help="share of training rows (R-CNN: episodes) one epoch visits")
@@ -1209,6 +1218,8 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--previous-noise and --previous-dropout shape --previous-command's last command: give it")
     if args.prune_from is not None and args.init_from is not None:
         parser.error("--prune-from and --init-from are two starts: name one")
+    if args.keep_branches and (args.kind != "cnn" or args.init_from is None):
+        parser.error("--keep-branches keeps a CNN start's camera branches: give --kind cnn and --init-from")
     return TrainingConfig.from_namespace(args)
 
 

@@ -658,3 +658,29 @@ def test_the_last_command_is_perturbed_and_dropped_on_training_rows_as_asked(tmp
     assert "a stop in its place on 50% of them" in notes_of(parse_args([*common, "--previous-dropout", "0.5"]))
     with pytest.raises(SystemExit):
         parse_args(["--kind", "cnn", "--previous-dropout", "0.5", "--dataset", str(data), "--out", "o"])
+
+
+def test_kept_branches_stay_the_starts_while_the_dense_layers_learn(tmp_path, rng):
+    """`--keep-branches`: a CNN started from another keeps its camera branches bit for bit
+    (with the last command as a new input too) and trains only its dense layers."""
+    data = write_dataset(tmp_path / "train", [1, 2, 3], 24, rng)
+    common = ["--dataset", str(data), "--epochs", "1", "--validation-episodes", "1", "--threads", "1", "--batch-size", "8"]
+    start = tmp_path / "start"
+    assert main(["--kind", "cnn", *common, "--out", str(start), "--checkpoint-dir", str(tmp_path / "c-start")]) == 0
+    started = torch.load(tmp_path / "c-start" / "cnn.pt", weights_only=False)["best"]["state"]
+    out = tmp_path / "kept"
+    argv = ["--kind", "cnn", *common, "--init-from", str(start), "--keep-branches", "--previous-command"]
+    assert main([*argv, "--out", str(out), "--checkpoint-dir", str(tmp_path / "c-kept"), "--lr", "1e-2"]) == 0
+    checkpoint = torch.load(tmp_path / "c-kept" / "cnn.pt", weights_only=False)
+    state = checkpoint["best"]["state"]  # after its one epoch
+    branches = [name for name in started if name.startswith("features.")]
+    assert branches
+    for name in branches:
+        assert torch.equal(state[name], started[name]), name
+    assert not torch.equal(state["out.weight"], started["head.2.weight"]), "the head learned"
+    assert checkpoint["identity"]["keep_branches"] is True
+    manifest = (out / "policy.toml").read_text()
+    assert "camera branches kept as they are" in manifest
+    for refused in (["--kind", "cnn", "--keep-branches"], ["--kind", "rcnn", "--init-from", str(start), "--keep-branches"]):
+        with pytest.raises(SystemExit):
+            parse_args([*refused, "--dataset", str(data), "--out", str(out)])
