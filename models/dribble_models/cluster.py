@@ -172,6 +172,9 @@ def play_share(
             environment["VK_ICD_FILENAMES"] = LAVAPIPE
         environment.setdefault("XDG_RUNTIME_DIR", str(scratch))
         environment.pop("DRIBBLE_DOMAIN", None)
+        # Ray's workers run with RUST_BACKTRACE set: anyhow would end a failed command's log
+        # with a backtrace long enough to push its error message out of the tail reported.
+        environment.setdefault("RUST_LIB_BACKTRACE", "0")
         out = scratch / "out"
         line = [str(dribble), command, *arguments,
                 "--episodes", f"{seeds.start}..{seeds.stop}",

@@ -115,8 +115,12 @@ def test_a_tiny_dagger_iteration_on_ray_records_and_chooses_as_without_it(tmp_pa
             assert "ray: " in result.stdout, result.stdout[-2000:]
         round_dir = data / "dagger" / "base-warm" / "round-1"
         index = json.loads((round_dir / "dataset.json").read_text())
-        # The policy's path differs between the two trees; everything else must not.
+        # The policy's path differs between the two trees, and so does its content hash (each
+        # tree trained its base, and the manifest records the training's wall time); the
+        # network itself and everything else must not.
         index["driver"]["policy"] = Path(index["driver"]["policy"]).name
+        assert len(index["driver"].pop("policy_hash")) == 64
+        assert index["driver"]["engine"] == "compiled"
         files[mode] = (index, {p.name: p.read_bytes() for p in round_dir.glob("*.npz")})
         # A closed loop through scripts/closed-loop with DRIBBLE_RAY as scripts/dagger sets it.
         summary = root / "select.json"
