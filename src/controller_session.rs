@@ -93,7 +93,7 @@ impl ControllerOptions {
         Ok(())
     }
 
-    fn engine_options(&self) -> EngineOptions {
+    pub(crate) fn engine_options(&self) -> EngineOptions {
         EngineOptions {
             engine: self.engine,
             isa: self.isa,

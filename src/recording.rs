@@ -5,7 +5,6 @@
 use std::path::PathBuf;
 
 use anyhow::ensure;
-use dribble_controller::policy::Engine;
 use dribble_controller::policy::engine::Isa;
 use dribble_controller::policy::manifest::PolicyManifest;
 use dribble_sim::dataset::{DatasetIndex, EpisodeEntry, EpisodeRecording, episode_file};
@@ -96,22 +95,19 @@ fn driver_record(
     path: &std::path::Path,
     manifest: &PolicyManifest,
 ) -> anyhow::Result<serde_json::Value> {
-    // tract has no instruction set to choose; the compiled engine runs the widest this CPU
-    // has unless one is named.
-    let isa = (args.controller.engine == Engine::Compiled)
-        .then(|| args.controller.isa.unwrap_or_else(Isa::detect).name());
+    let engine = args.controller.engine_options();
     Ok(serde_json::json!({
-            "policy": path.display().to_string(),
-            "policy_hash": RunSettings::policy_hash(path)?,
-            "engine": args.controller.engine.name(),
-            "isa": isa,
-            "kind": manifest.kind.to_string(),
-            "trained_on": manifest.training.dataset,
-            "dataset_hash": manifest.training.dataset_hash,
-            "label_with": "expert",
-            "beta": args.beta,
-            "mixing": "per computed command, the expert's command is executed with probability \
-                       beta (held until the next computed command); draws seeded by the episode",
+        "policy": path.display().to_string(),
+        "policy_hash": RunSettings::policy_hash(path)?,
+        "engine": engine.engine.name(),
+        "isa": engine.instruction_set().map(Isa::name),
+        "kind": manifest.kind.to_string(),
+        "trained_on": manifest.training.dataset,
+        "dataset_hash": manifest.training.dataset_hash,
+        "label_with": "expert",
+        "beta": args.beta,
+        "mixing": "per computed command, the expert's command is executed with probability \
+                   beta (held until the next computed command); draws seeded by the episode",
     }))
 }
 

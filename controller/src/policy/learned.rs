@@ -69,6 +69,14 @@ pub struct EngineOptions {
     pub isa: Option<Isa>,
 }
 
+impl EngineOptions {
+    /// The instruction set the compiled engine runs: the one named, else the widest this CPU
+    /// has; none for tract, which has none to choose.
+    pub fn instruction_set(&self) -> Option<Isa> {
+        (self.engine == Engine::Compiled).then(|| self.isa.unwrap_or_else(Isa::detect))
+    }
+}
+
 /// What runs a loaded policy's networks.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct EngineReport {
@@ -273,8 +281,7 @@ impl Network {
         // tract reads, checks and plans the file in any case: it is the loader and the oracle.
         let (mut network, proto) = OnnxNetwork::load(path, &interface)?;
         let mut fallback = None;
-        if options.engine == Engine::Compiled {
-            let isa = options.isa.unwrap_or_else(Isa::detect);
+        if let Some(isa) = options.instruction_set() {
             let shapes: Vec<(&str, &[usize])> = inputs
                 .iter()
                 .map(|&(_, name, shape)| (name, shape))
