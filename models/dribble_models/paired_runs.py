@@ -9,7 +9,8 @@ exact two-sided McNemar test on those (is one run's goal rate other than the oth
 
 Each run is a trajectories file of `dribble eval --trajectories` or its summary
 (`dribble_models.eval_summary`): both list episodes with their seed and outcome. With
-`--seeds A..B` only those seeds are compared (both runs must hold every one of them): a
+`--seeds A..B` (B excluded, as in `dribble eval --episodes`; the table prints the last seed
+played) only those seeds are compared (both runs must hold every one of them): a
 shorter run beside the first seeds of a longer one. Rows from
 several calls collect in OUT.json (keyed by label) and OUT.md is rewritten from all of them.
 """
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", nargs=2, action="append", metavar=("NAME", "FILE"), required=True, help="a run (twice): its name and its file")
     parser.add_argument("--label", required=True, help="the row's label (a row of the same label is replaced)")
     parser.add_argument("--out", type=Path, required=True, help="OUT.json collects the rows, OUT.md is their table")
-    parser.add_argument("--seeds", type=seed_range, metavar="A..B", help="only these seeds (both runs must hold them all)")
+    parser.add_argument("--seeds", type=seed_range, metavar="A..B", help="only these seeds, B excluded as in `dribble eval --episodes` (20000..20020: twenty seeds; the table prints the last one played); both runs must hold them all")
     args = parser.parse_args(argv)
     if len(args.run) != 2:
         parser.error("--run is given exactly twice")
