@@ -111,11 +111,13 @@ def test_under_randomized_conditions_clean_and_randomized_goals_count_together(t
 
 
 def test_the_committed_choice_follows_the_rule():
-    """models/policy/HOST_MODEL is what the rule picks from the committed rows."""
+    """models/policy/HOST_MODEL is what the rule picks from the committed rows: the results
+    table's (results.ROWS, as scripts/results reads them), not every committed candidate (one
+    with no test and fresh runs yet is no row and cannot be shipped)."""
     policy = Path(__file__).resolve().parents[1] / "policy"
     shipped = (policy / "HOST_MODEL").read_text().strip()
     rows = []
-    for directory in sorted(p for p in policy.iterdir() if (p / "policy.toml").is_file()):
+    for directory in (path for name in results.ROWS for path in results.row_directories(policy, name)):
         manifest = results.load(directory / "policy.toml")
         rows.append({"directory": str(directory), "training": manifest["training"]})
     assert Path(results.choose(rows)["directory"]).name == shipped
