@@ -180,7 +180,8 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-24-epochs", "cnn-modal", "cnn-modal-dagger4
         "cnn-4-16-4-8-distilled-dagger2-observable", "cnn-dagger1-observable", "cnn-dagger2-observable",
         "rcnn-memory-dagger1-observable",
         "cnn-orbit", "cnn-dagger{iteration}-orbit",
-        "cnn-conditions-distilled-clean", "cnn-conditions-motion-light", "cnn-conditions-4-16-4-8",
+        "cnn-conditions-distilled-clean", "cnn-conditions-motion-light", "cnn-conditions-previous-kept-branches",
+        "cnn-conditions-4-16-4-8",
         "cnn-dagger1-observable-int8", "cnn-8-16-4-8-distilled-dagger1-observable-int8", "cnn-dagger2-observable-int8",
         "cnn-8-16-4-8-distilled-dagger2-observable-int8", "cnn-4-16-4-8-distilled-dagger2-observable-int8",
         "cnn-conditions-4-16-4-8-int8")
