@@ -198,6 +198,12 @@ def row_directories(models: Path, name: str) -> list[Path]:
     return sorted(p for p in found if (p / "policy.toml").is_file())
 
 
+def rows_in(models: Path) -> list[Path]:
+    """The model directories of the results table's rows that `models` holds, in ROWS' order:
+    what scripts/results tables and the shipping rule chooses among."""
+    return [path for name in ROWS for path in row_directories(models, name)]
+
+
 def selection_run_name(stem: str) -> str:
     """A model's other selection runs by their file: `select_randomized` -> `randomized`,
     `select20_clean` (its first 20 selection seeds) -> `clean-20`."""
@@ -221,7 +227,7 @@ def selection_runs(directory: Path) -> str:
     models = directory.parent / "policy"
     for path in models.glob("*/select*_*.json"):
         runs.setdefault(f"{path.parent.name}-{selection_run_name(path.stem)}", path)
-    tabled = {path.name for name in ROWS for path in row_directories(models, name)}
+    tabled = {path.name for path in rows_in(models)}
     for path in models.glob("*/select.json"):
         if path.parent.name not in tabled:
             runs.setdefault(f"{path.parent.name}-clean", path)
@@ -360,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     specs = list(args.row)
     if args.models:
-        specs += [f"{path.name}={path}" for name in ROWS for path in row_directories(args.models, name)]
+        specs += [f"{path.name}={path}" for path in rows_in(args.models)]
     for spec in specs:
         name, _, directory = spec.partition("=")
         if not (Path(directory) / "policy.toml").is_file():

@@ -117,7 +117,7 @@ def test_the_committed_choice_follows_the_rule():
     policy = Path(__file__).resolve().parents[1] / "policy"
     shipped = (policy / "HOST_MODEL").read_text().strip()
     rows = []
-    for directory in (path for name in results.ROWS for path in results.row_directories(policy, name)):
+    for directory in results.rows_in(policy):
         manifest = results.load(directory / "policy.toml")
         rows.append({"directory": str(directory), "training": manifest["training"]})
     assert Path(results.choose(rows)["directory"]).name == shipped
