@@ -361,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--readme", type=Path, action="append", default=[], help="rewrite the generated blocks in this file (repeat it: README.md and the book's pages)")
     parser.add_argument("--out", type=Path, help="also write the tables (Markdown) here")
     parser.add_argument("--choose", type=Path, help="write the chosen model's directory name here: most goals on the selection episodes (select.json), then lowest validation error")
-    parser.add_argument("--robot", type=Path, help="with --choose: write the name of the policy the robot package carries here (robot_policy: the int8 policy that keeps the chosen model's quality and fits the V5 tick, else the chosen model's int8 twin where it keeps its quality, else the chosen model)")
+    parser.add_argument("--robot", type=Path, help="with --choose: write the name of the policy the robot package carries here (robot_policy: the int8 policy that keeps the chosen model's quality and fits the V5 tick, else the fitting int8 policy with the most selection goals, else the chosen model's int8 twin where it keeps its quality, else the chosen model)")
     args = parser.parse_args(argv)
     rows = []
     specs = list(args.row)

@@ -237,7 +237,7 @@ def scored_validation_error(directory: Path, own_score_needed: bool = False) -> 
 
 def int8_quality(
     twin: Path, shipped_run: Selection | None, shipped_randomized: Selection | None = None
-) -> tuple[bool, str, int]:
+) -> tuple[bool, str, int | None]:
     """Whether the int8 policy `twin` keeps the quality (issue 29's gate, on choosing data only,
     issue 48) and what was measured: quantized from exactly the networks of its float model
     (`<name>` without `-int8`, beside it), its error on the validation episodes at most 0.01
@@ -245,22 +245,23 @@ def int8_quality(
     models/selection/<twin>.json) not below the lower end of the shipped model's Wilson 95 %
     interval there; where the shipped model was chosen under randomized conditions too
     (`shipped_randomized`), the same of its run under them (models/selection/<twin>-randomized.json).
-    The goals returned are those counted (clean, plus randomized where asked). The test and
-    fresh seeds take no part."""
+    The goals returned are those counted (clean, plus randomized where asked), None where a run
+    or score the gate needs is missing (nothing was measured to rank it by). The test and fresh
+    seeds take no part."""
     original = twin.parent / twin.name.removesuffix("-int8")
     if not (twin / "policy.toml").is_file() or not (original / "policy.toml").is_file():
-        return False, f"no float model {original.name} beside it", 0
+        return False, f"no float model {original.name} beside it", None
     manifest, float_manifest = load(twin / "policy.toml"), load(original / "policy.toml")
     networks = [hashlib.sha256((original / n).read_bytes()).hexdigest() for n in float_manifest["networks"]]
     if manifest.get("precision") != "int8" or manifest.get("quantization", {}).get("float_networks_sha256") != networks:
-        return False, f"not quantized from {original.name}'s networks", 0
+        return False, f"not quantized from {original.name}'s networks", None
     errors = (scored_validation_error(twin, own_score_needed=True), scored_validation_error(original))
     if None in errors:
-        return False, "a validation score on the manifest's validation seeds is missing (score_validation.json)", 0
+        return False, "a validation score on the manifest's validation seeds is missing (score_validation.json)", None
     selection = twin.parent.parent / "selection"
     run = read_selection(selection / f"{twin.name}.json")
     if run is None or shipped_run is None or run.seeds != shipped_run.seeds:
-        return False, "no selection run on the shipped model's seeds", 0
+        return False, "no selection run on the shipped model's seeds", None
     held, against = within_interval(run, shipped_run)
     measured = (
         f"validation error {errors[0]:.4f} against {original.name}'s {errors[1]:.4f}; {run.goals} / {run.episodes} "
@@ -271,7 +272,7 @@ def int8_quality(
     if shipped_randomized is not None:
         randomized = read_selection(selection / f"{twin.name}-randomized.json")
         if randomized is None or randomized.seeds != shipped_randomized.seeds:
-            return False, f"{measured}; no run on those seeds under randomized conditions", 0
+            return False, f"{measured}; no run on those seeds under randomized conditions", None
         held, against = within_interval(randomized, shipped_randomized)
         measured += f"; under randomized conditions {randomized.goals} / {randomized.episodes} against {against}"
         kept = kept and held
@@ -297,31 +298,41 @@ def robot_policy(shipped: Path) -> tuple[str, str]:
     pipeline model's slow end where `cross/cycles` profiled the networks, else the recorded
     instruction count against `V5_TICK_BUDGET`), the ones whose V6 tick fits too come first
     (the package runs on both robots), then the most selection goals, then the shortest V5
-    tick; if none fits the V5, the shipped model's own twin where it keeps the quality; else
-    the shipped model. The choice reads the selection seeds only: closed loops on test seeds take no part;
-    the robot policy's are reported beside it."""
+    tick. Where none that fits keeps the quality, the robot still carries one that runs in its
+    tick: of the fitting int8 policies measured on the same selection runs (clean, and randomized
+    where the shipped model has such a run), the same order, and the reason says it is below the
+    shipped model's quality (a policy beyond the V5's budget misses the robot's deadlines, which
+    no quality makes up for). Only if no int8 policy fits the V5 at all, the shipped model's own
+    twin where it keeps the quality; else the shipped model. The choice reads the selection seeds
+    only: closed loops on test seeds take no part; the robot policy's are reported beside it."""
     shipped_run = read_selection(shipped / "select.json")
     # Chosen under randomized conditions too: the robot's policy is held to both runs.
     shipped_randomized = read_selection(shipped / "select_randomized.json")
     if shipped_run is None or shipped_randomized is None or shipped_randomized.seeds != shipped_run.seeds:
         shipped_randomized = None
-    fitting = []
+    fitting, below = [], []
     for twin in sorted(shipped.parent.glob("*-int8")):
         kept, measured, goals = int8_quality(twin, shipped_run, shipped_randomized)
         v5 = tick_fit(twin, "v5")
-        if kept and v5 is not None and v5[0]:
-            v6 = tick_fit(twin, "v6")
-            fits_v6 = v6 is not None and v6[0]
-            fitting.append((not fits_v6, -goals, v5[1], twin.name, measured, v5[2], v6))
-    if fitting:
-        misses_v6, _, _, name, measured, v5_text, v6 = min(fitting)
+        if goals is None or v5 is None or not v5[0]:
+            continue
+        v6 = tick_fit(twin, "v6")
+        fits_v6 = v6 is not None and v6[0]
+        (fitting if kept else below).append((not fits_v6, -goals, v5[1], twin.name, measured, v5[2], v6))
+    if fitting or below:
+        misses_v6, _, _, name, measured, v5_text, v6 = min(fitting or below)
         v6_text = "not counted" if v6 is None else v6[2]
         fits = "the V5 tick" + ("" if misses_v6 else " and the V6 tick")
-        return name, f"keeps the quality and fits {fits} (V5: {v5_text}; V6: {v6_text}): {measured}"
+        if fitting:
+            return name, f"keeps the quality and fits {fits} (V5: {v5_text}; V6: {v6_text}): {measured}"
+        return name, (
+            f"below {shipped.name}'s quality, but no int8 policy that fits the V5 tick keeps it; of those that fit, "
+            f"it fits {fits} with the most selection goals (V5: {v5_text}; V6: {v6_text}): {measured}"
+        )
     twin = shipped.parent / f"{shipped.name}-int8"
     if not (twin / "policy.toml").is_file():
-        return shipped.name, f"no int8 policy fits the V5 tick and keeps the quality, and there is no int8 twin {twin}"
+        return shipped.name, f"no int8 policy measured on the selection seeds fits the V5 tick, and there is no int8 twin {twin}"
     kept, measured, _ = int8_quality(twin, shipped_run, shipped_randomized)
     if not kept:
         return shipped.name, f"{twin.name} does not keep the quality: {measured}"
-    return twin.name, f"no int8 policy fits the V5 tick and keeps the quality; the shipped model's twin does: {measured}"
+    return twin.name, f"no int8 policy measured on the selection seeds fits the V5 tick; the shipped model's twin keeps the quality: {measured}"
