@@ -1,0 +1,36 @@
+"""scripts/robot-student refuses a DAgger round it could never train on before it records
+anything: the unseen venue (evaluation only) and a driver that is not there."""
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+DRIVER = "cnn-conditions-previous-whole-4-16-4-8-int8"
+
+
+def robot_student(*arguments: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(REPO / "scripts" / "robot-student"), *arguments],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+@pytest.mark.parametrize("condition", ["unseen-venue:3", "unseen-venue:1,light:3"])
+def test_a_round_under_the_unseen_venue_is_refused_before_recording(condition):
+    assert (REPO / "models" / "policy" / DRIVER / "policy.toml").is_file()
+    run = robot_student("--dagger-round", f"{DRIVER}@{condition}")
+    assert run.returncode == 2
+    assert "unseen venue is for evaluation only" in run.stderr
+    assert "record seeds" not in run.stdout
+
+
+def test_a_round_whose_driver_is_missing_is_refused_before_recording():
+    run = robot_student("--dagger-round", "cnn-conditions-policy-that-is-not-there@venue:4")
+    assert run.returncode == 2
+    assert "no models/policy/cnn-conditions-policy-that-is-not-there/policy.toml" in run.stderr
+    assert "record seeds" not in run.stdout
