@@ -150,6 +150,26 @@ def test_lerobots_eval_policy_plays_a_policy_lerobot_saved(tmp_path):
     assert refused.returncode == 2 and "chunks of 2 commands" in refused.stderr, refused.stderr[-2000:]
 
 
+@pytest.mark.skipif(not (LEROBOT_VENV / "bin" / "python").exists(), reason="no LeRobot environment (scripts/lerobot makes one)")
+def test_train_act_runs_lerobots_trainer_with_the_backbone_at_the_main_rate(tmp_path):
+    """`scripts/lerobot train-act` on a tiny export: LeRobot's trainer accepts every option it
+    passes, saves a checkpoint, and the ResNet from random weights learns at the rest's rate,
+    not at LeRobot's fine-tuning default (1e-5) for ImageNet weights."""
+    source = tmp_path / "source"
+    lerobot_format.write_dribble([(episode(21, 6), {}), (episode(22, 4), {})], source, teacher="detector")
+    run = lambda *args: subprocess.run([str(REPOSITORY / "scripts" / "lerobot"), *args], capture_output=True, text=True)  # noqa: E731
+    exported = run("export", str(source), str(tmp_path / "lerobot"))
+    assert exported.returncode == 0, exported.stderr
+    out = tmp_path / "act"
+    trained = run("train-act", str(tmp_path / "lerobot"), str(out), "--steps=2", "--save_freq=2", "--log_freq=1", "--batch_size=2")
+    assert trained.returncode == 0, trained.stdout[-3000:] + trained.stderr[-3000:]
+    saved = out / "checkpoints" / "000002" / "pretrained_model"
+    config = json.loads((saved / "config.json").read_text())
+    assert config["pretrained_backbone_weights"] is None
+    assert config["optimizer_lr"] == config["optimizer_lr_backbone"] == 1e-4
+    assert (saved / "model.safetensors").is_file() and (tmp_path / "act.log").is_file()
+
+
 TRAINER_LOG = (
     "INFO 2026-11-30 15:06:38 ot_train.py:332 cfg.steps=20000 (20K)\n"
     "Training:   2%|▎         | 499/20000 [00:03<02:14,  3.44s/step]Training:   2%|▎         | 500/20000 [00:03<02:14,  3.44s/step]"
