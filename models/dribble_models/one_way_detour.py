@@ -40,6 +40,10 @@ APPROACH = PHASES.index("approach")
 #: How close to the recorded command a recomputed two-way detour must come to count as the
 #: teacher's detour row (the recomputation matches to float rounding on recorded data).
 REPRODUCED = 1e-3
+#: The ball within this of the robot's centre (m): the detour's rows at the ball, where the
+#: robot's feet reach it (the teacher's approach distance is 0.28 m) and a step forward pushes
+#: the ball along instead of going around it.
+AT_BALL_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,19 @@ class OneWayDetour:
                 mask[i] = True
                 labels[i] = self.command(pose, ball, target_side, one_way=True)[0]
         return mask, labels
+
+    def at_ball_rows(self, episodes: list[Episode]) -> np.ndarray:
+        """Which rows of `episodes` (concatenated) are the teacher's detour with the ball within
+        `AT_BALL_M`; an episode without ground truth has none."""
+        masks = []
+        for episode in episodes:
+            if episode.robot_pose is None or episode.ball is None:
+                masks.append(np.zeros(len(episode), bool))
+                continue
+            mask, _ = self.detour_rows(episode)
+            offset = episode.ball.astype(np.float64) - episode.robot_pose[:, :2].astype(np.float64)
+            masks.append(mask & (np.hypot(offset[:, 0], offset[:, 1]) < AT_BALL_M))
+        return np.concatenate(masks) if masks else np.zeros(0, bool)
 
     def relabelled(self, episodes: list[Episode]) -> tuple[list[Episode], np.ndarray]:
         """`episodes` with the one-way labels on their detour rows, and which rows those are

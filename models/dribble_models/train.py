@@ -38,6 +38,12 @@ demonstrations and exports a model directory the controller loads.
   to go always clockwise (dribble_models.one_way_detour), on training and validation rows,
   and the model names the `detector-one-way` teacher: where the two-way detour's side cannot
   be seen, its labels disagree in states that look alike.
+- Detour at the ball: `--detour-weight W` samples the teacher's detour rows with the ball
+  within reach (`OneWayDetour.at_ball_rows`, from the recorded ground truth) W times as often
+  as the others, and keeps the teacher's label on them through a distillation: about 1 to 3 %
+  of the rows, where students walk on into the ball instead of around it (`python -m
+  dribble_models.detour_rows --driven` on a DAgger round shows it) and where the distilled
+  model does the same.
 - Device: `--device auto` (the default) trains on a CUDA GPU where PyTorch sees one, else on
   the CPU; the manifest's notes say which. On a GPU cuDNN and cuBLAS run their deterministic
   algorithms, so a seed gives the same model again on the same GPU, but not the CPU's model
@@ -75,7 +81,7 @@ from .camera_effects import CameraMotion, apply_camera_effects, light_patches
 from .command_metric import row_errors, sent_commands
 from .manifest import Lineage, ModelReference, TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, PreviousCommandCNN, set_standardise, standardises
-from .one_way_detour import OneWayDetour
+from .one_way_detour import AT_BALL_M, OneWayDetour
 from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of, shipped_initializers
 from .stalls import CutReport, StallRule, cut_all
 
@@ -571,12 +577,18 @@ class Training:
             self.validation_episodes, _ = OneWayDetour().relabelled(self.validation_episodes)
             print(f"one-way detour: {int(detour.sum())} of {len(detour)} training rows relabelled", file=sys.stderr)
         self.rows = Rows.of(self.train_episodes) if self.kind != "rcnn" else None
+        self.at_ball = np.zeros(0, bool)
+        if args.detour_weight != 1.0:
+            self.at_ball = OneWayDetour().at_ball_rows(self.train_episodes)
+            print(f"detour at the ball: {int(self.at_ball.sum())} of {len(self.at_ball)} training rows, sampled {args.detour_weight:g} times as often", file=sys.stderr)
         if args.distill_from is not None:
             if self.kind != "cnn":
                 raise DatasetError("--distill-from trains a CNN (--kind cnn)")
             distilled = np.concatenate(distilled_labels(args, self.train_episodes, self.device))
             if args.one_way_detour:
                 distilled = np.where(detour[:, None], self.rows.command, distilled)
+            if len(self.at_ball):
+                distilled = np.where(self.at_ball[:, None], self.rows.command, distilled)
             self.rows.command = distilled
             if args.validate_distilled:
                 # Checkpoints chosen by how near the student comes to the distilled model,
@@ -714,6 +726,7 @@ class Training:
             "validation_episodes": a.validation_episodes,
             "augment": a.augment,
             "balance_phases": a.balance_phases,
+            **({"detour_weight": a.detour_weight} if a.detour_weight != 1.0 else {}),
             "window": a.window,
             "lanes": a.lanes,
             "clusters": a.clusters,
@@ -797,10 +810,15 @@ class Training:
     def epoch_rows(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray]]:
         """(network, row batch) pairs of one epoch, shuffled; network 0 for a CNN."""
         every = np.arange(len(self.rows.phase))
-        if self.args.balance_phases:
-            # Each phase as often as the most frequent one (sampled with replacement).
-            counts = np.bincount(self.rows.phase, minlength=4)
-            weights = np.where(counts[self.rows.phase] > 0, 1.0 / counts[self.rows.phase], 0.0)
+        if self.args.balance_phases or len(self.at_ball):
+            # Sampled with replacement: each phase as often as the most frequent one
+            # (--balance-phases), the detour's rows at the ball --detour-weight times as often.
+            weights = np.ones(len(every))
+            if self.args.balance_phases:
+                counts = np.bincount(self.rows.phase, minlength=4)
+                weights = np.where(counts[self.rows.phase] > 0, 1.0 / counts[self.rows.phase], 0.0)
+            if len(self.at_ball):
+                weights = np.where(self.at_ball, weights * self.args.detour_weight, weights)
             count = len(every)
             every = rng.choice(every, size=count, p=weights / weights.sum())
         if self.kind == "cnn":
@@ -1047,6 +1065,8 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: b
             parts.append("a start trained on pixel / 255 has its first layers re-expressed at the training rows' typical level and spread (fold_typical_level)")
     if args.balance_phases:
         parts.append("phase-balanced sampling")
+    if args.detour_weight != 1.0:
+        parts.append(f"the teacher's detour rows at the ball (within {AT_BALL_M:g} m) sampled {args.detour_weight:g} times as often, with the teacher's labels")
     if args.add_dataset:
         parts.append(f"plus every episode of {', '.join(added_description(d) for d in args.add_dataset)} (expert-labelled)")
     if args.add_dataset and args.cut_stalls is not None:
@@ -1123,6 +1143,7 @@ class TrainingConfig:
     camera_augment_strength: str = "standard"
     standardise_input: bool = False
     balance_phases: bool = False
+    detour_weight: float = 1.0
     threads: int = 1
     device: str = "auto"
     checkpoint_dir: Path | None = None
@@ -1176,6 +1197,13 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--camera-augment-strength", choices=CameraAugment.STRENGTHS, default="standard", help="the ranges of --camera-augment: standard (up to 1.2 EV, contrast 0.4, noise 0.04) strong (up to 1.6 EV, contrast 0.25, noise 0.06, past the simulator's severity 5, each effect on 70%% of the augmented rows), or motion-and-light (the standard ranges, the camera's turn as a directional smear of up to 8 and a rolling-shutter skew of up to 6 thumbnail pixels on 40%% of the augmented rows, and soft shadows and bright spots)")
     parser.add_argument("--standardise-input", action="store_true", help="the controller standardises each thumbnail on its own before the network (mean 0, spread 1, at least 4 levels: [normalisation] standardise in policy.toml), so exposure, gain and contrast change nothing the network sees (beyond the paper)")
     parser.add_argument("--balance-phases", action="store_true", help="sample each expert phase equally often (beyond the paper)")
+    parser.add_argument(
+        "--detour-weight",
+        type=float,
+        default=1.0,
+        metavar="W",
+        help="sample the teacher's detour rows with the ball within reach W times as often, with the teacher's labels through a distillation (CNN; beyond the paper; 1: as any row)",
+    )
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="PyTorch CPU threads")
     parser.add_argument(
         "--device",
@@ -1210,6 +1238,10 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--freeze-features computes each episode's features once: no --augment")
     if args.previous_command and (args.kind != "cnn" or args.modes != 1 or args.prune_from is not None):
         parser.error("--previous-command trains a one-output CNN (--kind cnn, --modes 1, no --prune-from)")
+    if not args.detour_weight > 0 or (args.detour_weight != 1.0 and args.kind != "cnn"):
+        parser.error("--detour-weight is a positive weight, other than 1 for --kind cnn only")
+    if args.detour_weight != 1.0 and args.one_way_detour:
+        parser.error("--detour-weight finds the two-way detour's rows: not with --one-way-detour, which relabels them")
     if not args.previous_noise >= 0:
         parser.error("--previous-noise is a standard deviation, not negative")
     if not 0.0 <= args.previous_dropout <= 1.0:

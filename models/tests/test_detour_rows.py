@@ -86,3 +86,35 @@ def test_stall_frames_shows_each_hypothesis_and_the_teachers_two_detours(tmp_pat
     assert len(two["hypotheses"]) == 2 and sum(share for _, share in two["hypotheses"]) == pytest.approx(1.0)
     text = stall_frames.report(window, [tmp_path / "one", tmp_path / "two"])
     assert "seed 20016, 4 frames" in text and "hypothesis 1:" in text and text.count("sends") == 2
+
+
+def test_the_driving_policys_recorded_commands_are_weighed_at_the_ball_apart():
+    ball = np.array([1.0, 0.0])
+    poses = np.array([
+        [1.0, -0.25, math.pi / 2],  # a detour row at the ball (0.25 m)
+        [1.05, -0.5, math.pi / 2],  # a detour row half a metre from it
+        [-2.0, 0.0, 0.0],  # no detour
+    ])
+    episode = episode_at(poses, ball)
+    # The policy walked forward into the ball at the ball and did the teacher's command away from it.
+    driven = episode.command.copy()
+    driven[0] = [0.8, 0.0, 0.0]
+    table = detour_rows.driven_study([episode], {episode.seed: driven})
+    assert table["rows"] == 2
+    at_ball = table["groups"][f"at the ball (within {detour_rows.AT_BALL_M} m)"]
+    assert at_ball["rows"] == 1 and at_ball["forward"] == pytest.approx(0.8)
+    assert at_ball["teacher_forward"] == pytest.approx(float(episode.command[0, 0]))
+    every = table["groups"]["every detour row"]
+    assert every["rows"] == 2 and every["error"] == pytest.approx(at_ball["error"] / 2)
+
+
+def test_driven_reads_only_a_policy_driven_recording(tmp_path, rng, capsys):
+    from test_train import write_dataset
+
+    teacher_driven = write_dataset(tmp_path / "demo", [54, 55], 4, rng)
+    assert detour_rows.main(["--driven", "--dataset", str(teacher_driven), "--seeds", "54..56"]) == 2
+    assert "policy_command" in capsys.readouterr().err
+    driven = write_dataset(tmp_path / "round", [54, 55], 4, rng, driven=True)
+    assert detour_rows.main(["--driven", "--dataset", str(driven), "--seeds", "54..56"]) == 0
+    with pytest.raises(SystemExit):
+        detour_rows.main(["--driven", "--dataset", str(driven), "--seeds", "54..56", "models/policy/cnn"])

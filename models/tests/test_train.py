@@ -442,6 +442,48 @@ def test_the_one_way_detour_relabels_the_teachers_detour_rows_and_outlasts_disti
     assert 'teacher = "detector-one-way"' in (one_way_model / "policy.toml").read_text()
 
 
+def test_the_detour_at_the_ball_is_sampled_more_often_and_keeps_the_teachers_labels(tmp_path, rng):
+    train = write_dataset(tmp_path / "train", [1, 2, 3], 6, rng)
+    index = json.loads((train / "dataset.json").read_text())
+    rule = OneWayDetour()
+    # Seed 1: the teacher going around a ball at (1, 0) from its goal side, at the ball
+    # (0.25 m) on row 0, half a metre away on row 1.
+    poses = np.array([[1.0, -0.25, np.pi / 2], [1.05, -0.5, np.pi / 2]])
+    ball = np.array([1.0, 0.0])
+    entry = index["episodes"][0]
+    with np.load(train / entry["file"]) as arrays:
+        episode = dict(arrays)
+    episode["ball"][:] = ball
+    episode["robot_pose"][2:] = [-2.0, 0.0, 0.0]
+    for i, pose in enumerate(poses):
+        episode["robot_pose"][i], episode["phase"][i] = pose, 1
+        episode["command"][i] = rule.command(pose, ball, 1.0, one_way=False)[0]
+    np.savez_compressed(train / entry["file"], **episode)
+    entry["sha256"] = hashlib.sha256((train / entry["file"]).read_bytes()).hexdigest()
+    entry["conditions"] = "clean"
+    index["content_hash"] = ds.content_hash(index["episodes"])
+    index["teacher"] = "detector"
+    (train / "dataset.json").write_text(json.dumps(index))
+    common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
+    big = tmp_path / "big"
+    assert main([*common, "--out", str(big), "--checkpoint-dir", str(tmp_path / "c-big")]) == 0
+    flags = ["--distill-from", str(big), "--distill-camera-clean", "--detour-weight", "50"]
+    trainer = Training(parse_args([*common, "--out", str(tmp_path / "x"), *flags]), ds.load(train))
+    assert list(trainer.at_ball) == [True] + [False] * 11
+    # The row at the ball keeps the teacher's label; the detour row away from it is distilled.
+    np.testing.assert_allclose(trainer.rows.command[0], episode["command"][0], atol=1e-6)
+    assert np.abs(trainer.rows.command[1] - episode["command"][1]).max() > 1e-3
+    drawn = np.concatenate([b for _, b in trainer.epoch_rows(np.random.default_rng(0))])
+    # Weight 50 among 12 rows: about 50 / 61 of the draws, against 1 / 12 uniformly.
+    assert (drawn == 0).mean() > 0.5
+    plain = Training(parse_args([*common, "--out", str(tmp_path / "y")]), ds.load(train))
+    assert len(plain.at_ball) == 0
+    assert "detour rows at the ball" in notes_of(parse_args([*common, "--out", "o", *flags]))
+    for refused in (["--detour-weight", "0"], ["--detour-weight", "2", "--one-way-detour"]):
+        with pytest.raises(SystemExit):
+            parse_args([*common, "--out", "o", *refused])
+
+
 def test_a_pruned_start_takes_the_wide_models_strongest_filters(tmp_path, rng):
     train = write_dataset(tmp_path / "train", [1, 2], 12, rng)
     common = ["--kind", "cnn", "--dataset", str(train), "--epochs", "1", "--validation-episodes", "1", "--threads", "1"]
