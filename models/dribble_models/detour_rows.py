@@ -148,6 +148,14 @@ def driven_study(episodes: list[dataset.Episode], driven: dict[int, np.ndarray])
     }
 
 
+def behaviour_cells(b: dict) -> str:
+    """`behaviour`'s figures as the table cells both tables share."""
+    return (
+        f"{b['error']:.3f} | {b['forward']:+.2f} ({b['teacher_forward']:+.2f}) | {b['sideways_size']:.2f} ({b['teacher_sideways_size']:.2f}) | "
+        f"{b['teachers_way']:.0%} | {b['other_way']:.0%} | {b['stands']:.0%}"
+    )
+
+
 def driven_markdown(table: dict, seeds: list[int], directory: Path) -> str:
     lines = [
         f"The driving policy's recorded commands on {table['rows']} rows of the teacher's detour, {directory.name}, seeds {seeds[0]}..{seeds[-1] + 1}",
@@ -155,11 +163,7 @@ def driven_markdown(table: dict, seeds: list[int], directory: Path) -> str:
         "| rows | how many | error | forward (teacher's) | sideways size (teacher's) | steps the teacher's way | the other way | stands |",
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for name, b in table["groups"].items():
-        lines.append(
-            f"| {name} | {b['rows']} | {b['error']:.3f} | {b['forward']:+.2f} ({b['teacher_forward']:+.2f}) | "
-            f"{b['sideways_size']:.2f} ({b['teacher_sideways_size']:.2f}) | {b['teachers_way']:.0%} | {b['other_way']:.0%} | {b['stands']:.0%} |"
-        )
+    lines += [f"| {name} | {b['rows']} | {behaviour_cells(b)} |" for name, b in table["groups"].items()]
     return "\n".join(lines)
 
 
@@ -170,11 +174,7 @@ def markdown(table: dict, seeds: list[int]) -> str:
         "| policy | error | forward (teacher's) | sideways size (teacher's) | steps the teacher's way | the other way | stands |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
-    for name, b in table["policies"].items():
-        lines.append(
-            f"| {name} | {b['error']:.3f} | {b['forward']:+.2f} ({b['teacher_forward']:+.2f}) | {b['sideways_size']:.2f} ({b['teacher_sideways_size']:.2f}) | "
-            f"{b['teachers_way']:.0%} | {b['other_way']:.0%} | {b['stands']:.0%} |"
-        )
+    lines += [f"| {name} | {behaviour_cells(b)} |" for name, b in table["policies"].items()]
     return "\n".join(lines)
 
 
