@@ -4,7 +4,7 @@ shadows and bright patches, `shading`) and the camera's motion during the exposu
 directional smear and rolling-shutter skew, `CameraMotion`) on linear light, exposure and
 vignetting (the signal clipped where the sensor saturates), a softer lens as a 3x3 blur
 (12 camera pixels), contrast around mid-grey, then sensor noise as it survives the 4x4
-averaging. One function, for the trainer's augmentation (`train.CameraAugment`, drawn per
+averaging. One function, for the trainer's augmentation (`augmentation.CameraAugment`, drawn per
 row) and the offline look at one effect at a time (`thumbnail_effects.ThumbnailEffect`)."""
 
 from __future__ import annotations

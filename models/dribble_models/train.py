@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -73,279 +72,27 @@ from torch import nn
 from tqdm import tqdm
 
 from . import contract
-from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
-from .seed_ranges import refuse_reserved
+from .augmentation import Augment, CameraAugment
+from .dataset import Dataset, DatasetError, Episode, load, read_index
+from .distillation import distilled_labels
 from .export import export_policy
 from .gating import fit_centroids
-from .camera_effects import CameraMotion, apply_camera_effects, light_patches
-from .command_metric import row_errors, sent_commands
-from .manifest import Lineage, ModelReference, TrainingRecord
+from .manifest import TrainingRecord
 from .networks import CNN, FEATURES, HCNN, PAPER_FILTERS, RCNN, CameraFeatures, Filters, ModalCNN, PreviousCommandCNN, set_standardise, standardises
-from .one_way_detour import AT_BALL_M, OneWayDetour
-from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, network_of, shipped_initializers
+from .one_way_detour import OneWayDetour
+from .prediction import episode_features, gating_features, nearest, predict, score, to_input
+from .rcnn_windows import lanes_in, lanes_of, masked_loss, window_schedule, window_targets
+from .seed_ranges import refuse_reserved
+from .shipped_weights import ShippedWeightsError, is_shipped_model, load_pruned_weights, load_shipped_weights, shipped_initializers
+from .standardised_start import fold_typical_level
+from .training_record import device_name, lineage_of, notes_of, start_sha256
 from .stalls import CutReport, StallRule, cut_all
 
-SCALE = np.float32(contract.INPUT_SCALE)
 #: The teachers whose rows `--one-way-detour` takes: the detector teacher's, relabelled, and the
 #: one-way detector teacher's own, which it leaves as they are.
 ONE_WAY_TEACHERS = ("detector", "detector-one-way")
 DEFAULT_EPOCHS = {"cnn": 12, "hcnn": 12, "rcnn": 12}
 CHECKPOINT_FORMAT = 1
-
-
-# ---------------------------------------------------------------------------------------
-# The metric (command_metric.row_errors) over episodes
-
-
-def score(predictions: list[np.ndarray], episodes: list[Episode]) -> dict:
-    """The error overall, per expert phase and per episode."""
-    errors = [row_errors(p, e.command) for p, e in zip(predictions, episodes)]
-    every = np.concatenate(errors) if errors else np.zeros(0)
-    phases = np.concatenate([e.phase for e in episodes]) if episodes else np.zeros(0, np.uint8)
-    per_phase = {}
-    for index, name in enumerate(PHASES):
-        chosen = every[phases == index]
-        per_phase[name] = {"error": float(chosen.mean()) if len(chosen) else None, "rows": int(len(chosen))}
-    return {
-        "error": float(every.mean()) if len(every) else math.nan,
-        "rows": int(len(every)),
-        "phases": per_phase,
-        "episodes": [{"seed": e.seed, "error": float(r.mean()), "rows": len(r)} for e, r in zip(episodes, errors)],
-    }
-
-
-# ---------------------------------------------------------------------------------------
-# Inputs
-
-
-def to_input(thumbnails: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
-    """u8 [N,H,W] -> f32 [N,1,H,W] on `device`, `pixel * scale` as the robot computes it."""
-    return (torch.from_numpy(np.asarray(thumbnails)).unsqueeze(1).float() * torch.tensor(SCALE)).to(device)
-
-
-def gating_features(top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
-    """The 10-value H-CNN feature of many rows at once: `numpy.histogram(x, 5, (0, 255))`
-    of each thumbnail over its pixel count, top then bottom (gating.py, one row at a time)."""
-
-    def histograms(images: np.ndarray) -> np.ndarray:
-        bins = np.minimum(images.reshape(len(images), -1) // 51, 4)
-        counts = np.stack([(bins == b).sum(axis=1) for b in range(contract.HISTOGRAM_BINS)], axis=1)
-        return (counts / bins.shape[1]).astype(np.float32)
-
-    return np.concatenate([histograms(top), histograms(bottom)], axis=1)
-
-
-def nearest(features: np.ndarray, centroids: np.ndarray) -> np.ndarray:
-    """Nearest centroid (Euclidean, in f32 like the robot), the first on a tie."""
-    distances = np.linalg.norm(features[:, None, :] - centroids[None, :, :].astype(np.float32), axis=2)
-    return np.argmin(distances, axis=1)
-
-
-@dataclass
-class Augment:
-    """Photometric and geometric jitter of training batches (off in the paper setup)."""
-
-    brightness: float = 0.2  # gain in [1 - b, 1 + b]
-    offset: float = 0.06  # added, in network units (pixel / 255)
-    noise: float = 0.02  # Gaussian, network units
-    shift: int = 4  # pixels of the top thumbnail (half for the bottom)
-
-    def __call__(self, top: torch.Tensor, bottom: torch.Tensor, generator: torch.Generator):
-        n = top.shape[0]
-        gain = 1 + (torch.rand(n, 1, 1, 1, generator=generator) * 2 - 1) * self.brightness
-        offset = (torch.rand(n, 1, 1, 1, generator=generator) * 2 - 1) * self.offset
-        shifts = torch.randint(-self.shift, self.shift + 1, (n, 2), generator=generator)
-        out = []
-        for images, divisor in ((top, 1), (bottom, 2)):
-            shifted = torch.empty_like(images)
-            pad = self.shift // divisor
-            padded = nn.functional.pad(images, (pad, pad, pad, pad), mode="replicate")
-            h, w = images.shape[2:]
-            for i in range(n):
-                dy, dx = (int(s) // divisor for s in shifts[i])
-                shifted[i] = padded[i, :, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
-            noisy = shifted * gain + offset + torch.randn(shifted.shape, generator=generator) * self.noise
-            out.append(noisy.clamp(0.0, 1.0))
-        return out[0], out[1]
-
-
-@dataclass
-class CameraAugment:
-    """What the simulator's camera conditions do to a thumbnail (`apply_camera_effects`:
-    exposure, vignetting, a softer or moving lens, contrast, sensor noise), drawn per row and
-    applied to a share of the training rows where rendering them would cost an episode. Top
-    and bottom share a row's exposure and contrast (one light, one processor) and the
-    camera's turn (the same motion, at each thumbnail's own scale); each has its own noise
-    and its own patches of light. The rest of what the light condition does (shadows cast
-    where the geometry puts them), venues and robots change the scene and are rendered."""
-
-    share: float = 0.5  # of the rows, augmented
-    exposure_ev: float = 1.2  # uniform in +-
-    contrast_low: float = 0.4  # contrast uniform in [low, 1]
-    vignetting: float = 0.5  # corner loss uniform in [0, v]
-    noise: float = 0.04  # standard deviation uniform in [0, n], network units
-    blur_share: float = 0.3
-    effect_chance: float = 0.5  # of each effect on an augmented row
-    #: The camera's turn during the exposure (`CameraMotion`), on this share of the augmented
-    #: rows: smear up to `smear_px` and rolling-shutter skew up to `skew_px` top-thumbnail
-    #: pixels (0: none).
-    motion_share: float = 0.0
-    smear_px: float = 0.0
-    skew_px: float = 0.0
-    #: Soft shadows and bright spots (`light_patches`): each of up to three a view is there
-    #: with this chance on an augmented row (0: none).
-    patch_chance: float = 0.0
-
-    #: `--camera-augment-strength`: the ranges above; ranges past the simulator's severity 5
-    #: for contrast, exposure and noise, each effect on more of the rows (strong); or the
-    #: standard ranges and the camera's turn (a directional smear and skew to past severity
-    #: 5's) and patches of sunlight and shadow (motion-and-light).
-    STRENGTHS = ("standard", "strong", "motion-and-light")
-
-    @classmethod
-    def of_strength(cls, share: float, strength: str) -> "CameraAugment":
-        if strength == "strong":
-            return cls(share=share, exposure_ev=1.6, contrast_low=0.25, vignetting=0.65, noise=0.06, blur_share=0.5, effect_chance=0.7)
-        if strength == "motion-and-light":
-            return cls(share=share, blur_share=0.15, motion_share=0.4, smear_px=8.0, skew_px=6.0, patch_chance=0.35)
-        return cls(share=share)
-
-    def __call__(self, top: torch.Tensor, bottom: torch.Tensor, generator: torch.Generator):
-        n = top.shape[0]
-
-        def draw(low: float, high: float) -> torch.Tensor:
-            return low + (high - low) * torch.rand(n, 1, 1, 1, generator=generator)
-
-        chosen = (torch.rand(n, 1, 1, 1, generator=generator) < self.share).float()
-        on = lambda: (torch.rand(n, 1, 1, 1, generator=generator) < self.effect_chance).float() * chosen  # noqa: E731
-        ev = draw(-self.exposure_ev, self.exposure_ev) * on()
-        contrast = 1 + (draw(self.contrast_low, 1.0) - 1) * on()
-        vignetting = draw(0.0, self.vignetting) * on()
-        sigma = draw(0.0, self.noise) * on()
-        blur = (torch.rand(n, 1, 1, 1, generator=generator) < self.blur_share).float() * chosen
-        turn = self.turn(n, chosen, generator) if self.motion_share > 0 else None
-        patch_chance = chosen * self.patch_chance
-        out = []
-        for images in (top, bottom):
-            noise = torch.randn(images.shape, generator=generator) * sigma
-            motion, shading = None, 1.0
-            if turn is not None:
-                scale = images.shape[-1] / top.shape[-1]
-                motion = CameraMotion(turn[0] * scale, turn[1], turn[2] * scale)
-            if self.patch_chance > 0:
-                shading = light_patches(n, images.shape[-2:], generator, patch_chance)
-            out.append(apply_camera_effects(images, ev, contrast, vignetting, blur, noise, shading, motion))
-        return out[0], out[1]
-
-    def turn(self, n: int, chosen: torch.Tensor, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Smear length, angle and skew (top-thumbnail pixels, radians) of the camera's turn,
-        0 on the rows without one: mostly a turn (along x, within about 0.3 rad), a nod along
-        y on a fifth of them."""
-        moving = (torch.rand(n, generator=generator) < self.motion_share).float() * chosen.view(n)
-        length = self.smear_px * torch.rand(n, generator=generator) * moving
-        nod = (torch.rand(n, generator=generator) < 0.2).float()
-        angle = 0.3 * torch.randn(n, generator=generator) + nod * torch.pi / 2
-        sign = torch.where(torch.rand(n, generator=generator) < 0.5, -1.0, 1.0)
-        skew = sign * self.skew_px * torch.rand(n, generator=generator) * moving * (1 - nod)
-        return length, angle, skew
-
-
-# ---------------------------------------------------------------------------------------
-# Prediction as the robot runs each kind
-
-
-def typical_level(thumbnails: np.ndarray, sample: np.ndarray) -> tuple[float, float]:
-    """The mean over `sample` rows of each thumbnail's own mean and spread, in pixel levels."""
-    pixels = thumbnails[sample].astype(np.float64)
-    means = pixels.mean(axis=(1, 2))
-    spreads = np.maximum(pixels.std(axis=(1, 2)), contract.STANDARDISE_FLOOR_LEVELS)
-    return float(means.mean()), float(spreads.mean())
-
-
-@torch.no_grad()
-def fold_typical_level(model: nn.Module, rows: "Rows", rng: np.random.Generator, sample_rows: int = 4096) -> None:
-    """Re-expresses the first convolution of each camera branch of a model trained on
-    `pixel / 255` for standardised input: with a thumbnail's typical mean `m` and spread `s`,
-    `pixel / 255 = (z * s + m) / 255`, so `W' = W * s / 255` and `b' = b + sum(W) * m / 255`
-    give the old first layer's answer on a typical thumbnail (exactly where mean and spread
-    are typical, away from the zero-padded border). A start, not an equivalence: training
-    then learns the rest."""
-    sample = np.sort(rng.choice(len(rows.top), size=min(sample_rows, len(rows.top)), replace=False))
-    for module in model.modules():
-        if not isinstance(module, CameraFeatures):
-            continue
-        for branch, thumbnails in ((module.top, rows.top), (module.bottom, rows.bottom)):
-            mean, spread = typical_level(thumbnails, sample)
-            first = branch[0]
-            scale = float(contract.INPUT_SCALE)
-            first.bias += first.weight.sum(dim=(1, 2, 3)) * (mean * scale)
-            first.weight *= spread * scale
-
-
-def device_of(model: nn.Module) -> torch.device:
-    """Where `model`'s weights are (the CPU or a GPU)."""
-    return next(model.parameters()).device
-
-
-@torch.no_grad()
-def predict_cnn(model: CNN | ModalCNN | PreviousCommandCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
-    """Each row's command; a network that reads its last command is given the command the
-    recording executed at the row before (`Episode.previous`), as the controller would feed
-    it on the robot that drove the episode."""
-    model.eval()
-    device = device_of(model)
-
-    def rows(i: int) -> tuple[torch.Tensor, ...]:
-        images = (to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device))
-        if isinstance(model, PreviousCommandCNN):
-            return (*images, torch.from_numpy(episode.previous[i : i + chunk]).to(device))
-        return images
-
-    out = [model(*rows(i)).cpu().numpy() for i in range(0, len(episode), chunk)]
-    return np.concatenate(out) if out else np.zeros((0, 3), np.float32)
-
-
-@torch.no_grad()
-def predict_hcnn(model: HCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
-    model.eval()
-    device = device_of(model)
-    clusters = nearest(gating_features(episode.top, episode.bottom), model.centroids)
-    out = np.zeros((len(episode), 3), np.float32)
-    for k, expert in enumerate(model.experts):
-        rows = np.flatnonzero(clusters == k)
-        for i in range(0, len(rows), chunk):
-            part = rows[i : i + chunk]
-            out[part] = expert(to_input(episode.top[part], device), to_input(episode.bottom[part], device)).cpu().numpy()
-    return out
-
-
-@torch.no_grad()
-def predict_rcnn(model: RCNN, episode: Episode, chunk: int = 512) -> np.ndarray:
-    """The whole episode from a zero state, as the controller steps it."""
-    model.eval()
-    device = device_of(model)
-    features = torch.cat(
-        [model.features(to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device)) for i in range(0, len(episode), chunk)]
-    )
-    out, _ = model.lstm(features.unsqueeze(0), model.zero_state())
-    return model.head(out[0]).cpu().numpy()
-
-
-def predict(model, kind: str, episodes: list[Episode]) -> list[np.ndarray]:
-    step = {"cnn": predict_cnn, "hcnn": predict_hcnn, "rcnn": predict_rcnn}[kind]
-    return [step(model, e) for e in episodes]
-
-
-def rcnn_forward_windows(model: RCNN, top: torch.Tensor, bottom: torch.Tensor, window: int) -> torch.Tensor:
-    """One episode [T,1,H,W] through the R-CNN in windows of `window` steps, the state carried
-    from window to window (detached, as in training) and zero at the start: [T,3]."""
-    state = model.zero_state()
-    outputs = []
-    for start in range(0, top.shape[0], window):
-        out, state = model(top[None, start : start + window], bottom[None, start : start + window], state)
-        state = (state[0].detach(), state[1].detach())
-        outputs.append(out[0])
-    return torch.cat(outputs)
 
 
 def cnn_features(path: Path) -> nn.Module:
@@ -365,23 +112,6 @@ def cnn_features(path: Path) -> nn.Module:
     else:
         raise DatasetError(f"--features-from {path}: no such checkpoint or model")
     return cnn.features
-
-
-@torch.no_grad()
-def episode_features(model: RCNN, episode: Episode, chunk: int = 512) -> torch.Tensor:
-    """An episode's camera features [T, FEATURES] (the frozen convolutions, once), kept on the CPU."""
-    model.features.eval()
-    device = device_of(model)
-    return torch.cat(
-        [
-            model.features(to_input(episode.top[i : i + chunk], device), to_input(episode.bottom[i : i + chunk], device)).cpu()
-            for i in range(0, len(episode), chunk)
-        ]
-    )
-
-
-# ---------------------------------------------------------------------------------------
-# Training
 
 
 def winner_takes_all_loss(
@@ -420,119 +150,11 @@ class Rows:
         )
 
 
-def distilled_commands(model_path: Path, episodes: list[Episode], device: torch.device | str = "cpu", chunk: int = 512) -> list[np.ndarray]:
-    """The commands the shipped float CNN at `model_path` sends for each row of `episodes`,
-    one array an episode: the labels of `--distill-from`. An episode recorded with a clean
-    twin (`dribble record --clean-twin`) is shown its twin's thumbnails: what a
-    clean-trained model sees of the same state."""
-    if not is_shipped_model(model_path):
-        raise DatasetError(f"--distill-from {model_path}: not a shipped model (a directory with policy.toml)")
-    teacher = CNN(PAPER_FILTERS)
-    try:
-        load_shipped_weights(teacher, model_path, "cnn")
-    except ShippedWeightsError as error:
-        raise DatasetError(f"--distill-from: {error}") from error
-    teacher.to(device).eval()
-    out = []
-    with torch.no_grad():
-        for episode in episodes:
-            tops, bottoms = (episode.top_clean, episode.bottom_clean) if episode.has_clean_twin else (episode.top, episode.bottom)
-            commands = np.empty_like(episode.command)
-            for start in range(0, len(commands), chunk):
-                end = min(start + chunk, len(commands))
-                top, bottom = to_input(tops[start:end], device), to_input(bottoms[start:end], device)
-                commands[start:end] = sent_commands(teacher(top, bottom).cpu().numpy())
-            out.append(commands)
-    return out
-
-
-#: Conditions under which a camera sees as on a clean render: robots around the field change
-#: the scene but neither the camera, the light nor the venue.
-CAMERA_CLEAN_CONDITIONS = {"clean", "robots"}
-
-
-def camera_clean(episode: Episode) -> bool:
-    """Whether `episode` was recorded with nothing that changes how the camera sees (no
-    camera, light or venue condition): where a policy trained on clean renders sees as it
-    was trained to, so `--distill-camera-clean` takes its commands there."""
-    names = {part.split(":")[0] for part in (episode.conditions or "clean").split(",")}
-    return names <= CAMERA_CLEAN_CONDITIONS
-
-
-def seen_clean(episode: Episode) -> bool:
-    """Whether a clean-trained policy can see `episode`'s states as it learned to: the
-    episode is camera-clean, or it was recorded with a clean twin of every frame."""
-    return camera_clean(episode) or episode.has_clean_twin
-
-
-def distilled_labels(args: "TrainingConfig", episodes: list[Episode], device: torch.device | str) -> list[np.ndarray]:
-    """The labels `--distill-from` gives `episodes`, one array an episode: the distilled
-    model's commands (on clean twins where recorded); with `--distill-camera-clean` only
-    where it sees as it learned to, the teacher's elsewhere."""
-    distilled = distilled_commands(args.distill_from, episodes, device)
-    if not args.distill_camera_clean:
-        return distilled
-    rows = sum(len(e) for e in episodes)
-    clean = sum(len(e) for e in episodes if seen_clean(e))
-    twinned = sum(len(e) for e in episodes if e.has_clean_twin and not camera_clean(e))
-    print(
-        f"distilled labels on {clean} of {rows} rows (camera-clean episodes; "
-        f"{twinned} of them conditioned rows labelled from their clean twins)",
-        file=sys.stderr,
-    )
-    return [labels if seen_clean(e) else e.command for labels, e in zip(distilled, episodes)]
-
-
 def row_batches(rows: np.ndarray, fraction: float, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
     """A seeded random `fraction` of `rows` (indices), in batches."""
     count = max(1, int(round(len(rows) * fraction)))
     chosen = rng.permutation(rows)[:count]
     return [np.sort(chosen[i : i + batch]) for i in range(0, len(chosen), batch)]
-
-
-def lanes_of(episodes: list[Episode], order: np.ndarray, lanes: int) -> list[list[int]]:
-    """Episodes (in `order`) dealt into lanes of nearly equal total length."""
-    result: list[list[int]] = [[] for _ in range(lanes)]
-    totals = [0] * lanes
-    for e in order:
-        lane = int(np.argmin(totals))
-        result[lane].append(int(e))
-        totals[lane] += len(episodes[e])
-    return result
-
-
-def window_schedule(episodes: list[Episode], lanes: list[list[int]], window: int) -> list[list[tuple[int, int] | None]]:
-    """Per training step, per lane: (episode, first row) of its next window, or None."""
-    per_lane = [[(e, s) for e in lane for s in range(0, len(episodes[e]), window)] for lane in lanes]
-    steps = max((len(l) for l in per_lane), default=0)
-    return [[l[t] if t < len(l) else None for l in per_lane] for t in range(steps)]
-
-
-def lanes_in(step: list[tuple[int, int] | None]):
-    """The lanes of one training step that hold a window: (lane, (episode, first row))."""
-    return [(lane, item) for lane, item in enumerate(step) if item is not None]
-
-
-def window_targets(step, episodes: list[Episode], window: int, lanes: int, device: torch.device | str = "cpu"):
-    """For one step's windows, on `device`: the expert's commands [lanes, window, 3], the mask
-    of real rows [lanes, window], and the factor [1, lanes, 1] that zeroes the carried state
-    of a lane whose window starts an episode (as on the robot)."""
-    target = torch.zeros(lanes, window, 3)
-    mask = torch.zeros(lanes, window)
-    fresh = torch.ones(1, lanes, 1)
-    for lane, (e, start) in lanes_in(step):
-        end = min(start + window, len(episodes[e]))
-        target[lane, : end - start] = torch.from_numpy(episodes[e].command[start:end])
-        mask[lane, : end - start] = 1.0
-        if start == 0:
-            fresh[0, lane, 0] = 0.0
-    return target.to(device), mask.to(device), fresh.to(device)
-
-
-def masked_loss(out: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean squared error over the real rows of the windows."""
-    squared = ((out - target) ** 2).mean(dim=2)
-    return (squared * mask).sum() / mask.sum().clamp(min=1.0)
 
 
 class Training:
@@ -972,10 +594,6 @@ def training_device(choice: str) -> torch.device:
     return torch.device(choice)
 
 
-def device_name(device: torch.device) -> str:
-    return f"cuda ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else "the CPU"
-
-
 def plot_history(history: list[dict], path: Path, title: str) -> None:
     import matplotlib
 
@@ -997,110 +615,6 @@ def plot_history(history: list[dict], path: Path, title: str) -> None:
     figure.tight_layout()
     figure.savefig(path)
     plt.close(figure)
-
-
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def start_sha256(path: Path) -> str:
-    """The hash that names a start: the checkpoint file's, or a shipped model's network file's."""
-    return file_sha256(network_of(path) if is_shipped_model(path) else path)
-
-
-def lineage_of(args: "TrainingConfig") -> Lineage | None:
-    """The `[lineage]` of the model a run writes: the model it started from (its kept weights,
-    or pruned), the one whose commands were its labels, and the CNN whose convolutions an
-    R-CNN took."""
-    def reference(path: Path, how: str | None = None) -> ModelReference:
-        return ModelReference(str(path), start_sha256(path)[:12], how)
-
-    started = None
-    if args.init_from is not None:
-        started = reference(args.init_from, "camera branches kept as they are, dense layers trained" if args.keep_branches else None)
-    elif args.prune_from is not None:
-        started = reference(args.prune_from, "pruned to these filters, largest L1 norms kept")
-    distilled = reference(args.distill_from) if args.distill_from is not None else None
-    features = None
-    if args.features_from is not None:
-        features = reference(args.features_from, "kept fixed" if args.freeze_features else "trained on")
-    return Lineage(started, distilled, features) if started or distilled or features else None
-
-
-def added_description(directory: Path) -> str:
-    """An added dataset's name and who drove its episodes: a policy (a DAgger round's
-    `dribble record --driver`, whose dataset.json names the driver) or the expert."""
-    try:
-        driven = "policy-driven" if read_index(directory).get("driver") else "expert-driven"
-    except DatasetError:
-        return directory.name
-    return f"{directory.name} ({driven})"
-
-
-def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: bool = False, widened: bool = False) -> str:
-    parts = [
-        f"Adam lr {args.lr}",
-        f"batch {args.batch_size}" if args.kind != "rcnn" else f"{args.lanes} lanes of {args.window}-step windows",
-        f"epoch fraction {args.epoch_fraction}",
-        f"{args.validation_episodes} validation episodes",
-    ]
-    if args.modes != 1:
-        parts.append(f"{args.modes} command hypotheses, winner-takes-all with a learned choice")
-    if args.filters != PAPER_FILTERS:
-        f = args.filters
-        parts.append(f"filters {f.text()} (top {f[0]} then {f[1]}, bottom {f[2]} then {f[3]}; the paper's {PAPER_FILTERS.text()})")
-    if args.kind == "hcnn":
-        parts.append(f"K {args.clusters} (k-means on {args.kmeans_rows} sampled rows)")
-    parts.append("augmented" if args.augment else "no augmentation")
-    if args.camera_augment > 0:
-        strength = {
-            "standard": "",
-            "strong": ", strong ranges",
-            "motion-and-light": ", the camera's turn (directional smear, rolling-shutter skew), patches of shadow and sunlight",
-        }[args.camera_augment_strength]
-        parts.append(f"camera conditions augmented on {args.camera_augment:.0%} of the rows (CameraAugment: exposure, contrast, vignetting, blur, noise{strength})")
-    if args.standardise_input:
-        parts.append("each thumbnail standardised on its own before the network ([normalisation] standardise)")
-        if folded:
-            parts.append("a start trained on pixel / 255 has its first layers re-expressed at the training rows' typical level and spread (fold_typical_level)")
-    if args.balance_phases:
-        parts.append("phase-balanced sampling")
-    if args.detour_weight != 1.0:
-        parts.append(f"the teacher's detour rows at the ball (within {AT_BALL_M:g} m) sampled {args.detour_weight:g} times as often, with the teacher's labels")
-    if args.add_dataset:
-        parts.append(f"plus every episode of {', '.join(added_description(d) for d in args.add_dataset)} (expert-labelled)")
-    if args.add_dataset and args.cut_stalls is not None:
-        parts.append(f"stalls in them cut after {args.cut_stalls:g} s (dribble_models.stalls)")
-    if args.init_from is not None:
-        parts.append(f"started from the kept weights of {args.init_from} (sha256 {start_sha256(args.init_from)[:12]})")
-        if widened:
-            parts.append(
-                "a one-output start's head widened to the hypotheses (ModalCNN.widened: each its command, sideways moved "
-                "by +-0.5 between them, the choice tied: it begins with the start's commands)"
-            )
-    if args.prune_from is not None:
-        parts.append(f"started from {args.prune_from} (sha256 {start_sha256(args.prune_from)[:12]}) pruned to these filters, largest L1 norms kept")
-    if args.distill_from is not None:
-        rows = "on the rows of camera-clean episodes (clean or robots only) and, where recorded, the clean twins of conditioned rows; the teacher's labels elsewhere" if args.distill_camera_clean else "for each training row (its clean twin where recorded)"
-        validated = "validated on them by the same rule" if args.validate_distilled else "validated on the teacher's"
-        parts.append(f"distilled: trained on the commands of {args.distill_from} (sha256 {start_sha256(args.distill_from)[:12]}) {rows}, {validated}")
-    if args.previous_command:
-        parts.append(
-            f"the last command sent is a third input ([inputs] previous; PreviousCommandCNN): on each row the command executed "
-            f"at the row before, perturbed on training rows by Gaussian noise of {args.previous_noise:g}"
-            + (f", a stop in its place on {args.previous_dropout:.0%} of them" if args.previous_dropout > 0 else "")
-        )
-    if args.keep_branches:
-        parts.append("the start's camera branches kept as they are, only the dense layers trained")
-    if args.one_way_detour:
-        parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
-    if args.features_from is not None:
-        how = "kept fixed" if args.freeze_features else "trained on"
-        parts.append(f"convolutions from the CNN {args.features_from} (sha256 {start_sha256(args.features_from)[:12]}), {how}")
-    if device is not None and device.type != "cpu":
-        parts.append(f"trained on {device_name(device)}")
-    parts.append("train_error over every episode of the training dataset (validation ones too)")
-    return "; ".join(parts)
 
 
 @dataclass(frozen=True)

@@ -62,7 +62,7 @@ def test_former_names_are_not_taken_by_another_model():
 def test_the_trainer_records_the_models_a_run_came_from():
     from types import SimpleNamespace
 
-    from dribble_models.train import lineage_of
+    from dribble_models.training_record import lineage_of
 
     parent = Path("models/policy") / (POLICIES / "HOST_MODEL").read_text().strip()
     digest = hashlib.sha256(network_of(REPOSITORY / parent).read_bytes()).hexdigest()[:12]

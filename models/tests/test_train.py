@@ -4,7 +4,6 @@ No test here asserts how well anything learns."""
 
 import hashlib
 import json
-import os
 import subprocess
 from pathlib import Path
 
@@ -18,22 +17,12 @@ from dribble_models.networks import RCNN, ModalCNN, RCNNStep
 from dribble_models.networks import CNN, PAPER_FILTERS, Filters
 from dribble_models.one_way_detour import OneWayDetour
 from dribble_models.shipped_weights import load_pruned_weights, load_shipped_weights
-from dribble_models.train import (
-    CameraAugment,
-    Rows,
-    Training,
-    gating_features,
-    main,
-    notes_of,
-    parse_args,
-    sent_commands,
-    start_sha256,
-    predict_rcnn,
-    rcnn_forward_windows,
-    row_errors,
-    to_input,
-    winner_takes_all_loss,
-)
+from dribble_models.augmentation import CameraAugment
+from dribble_models.command_metric import row_errors, sent_commands
+from dribble_models.prediction import gating_features, predict_rcnn, to_input
+from dribble_models.rcnn_windows import rcnn_forward_windows
+from dribble_models.train import Rows, Training, main, parse_args, winner_takes_all_loss
+from dribble_models.training_record import notes_of, start_sha256
 from dribble_models.gating import gating_feature
 from dribble_models.results import main as results_main
 
@@ -614,7 +603,8 @@ def test_a_folded_start_answers_as_before_on_a_typical_thumbnail(rng):
     zero-padded border, where the two paddings differ)."""
     from dribble_models.networks import set_standardise
     from dribble_models.networks import standardised
-    from dribble_models.train import Rows, fold_typical_level
+    from dribble_models.standardised_start import fold_typical_level
+    from dribble_models.train import Rows
 
     def rows_like(top_base, bottom_base, n=6):
         # Every row the same pattern: its mean and spread are the typical ones.

@@ -8,7 +8,8 @@ import torch
 
 from dribble_models import dataset as ds
 from dribble_models.networks import CNN, HCNN, RCNN
-from dribble_models.train import main, predict
+from dribble_models.prediction import predict
+from dribble_models.train import main
 
 from test_train import write_dataset
 
