@@ -118,3 +118,45 @@ def test_driven_reads_only_a_policy_driven_recording(tmp_path, rng, capsys):
     assert detour_rows.main(["--driven", "--dataset", str(driven), "--seeds", "54..56"]) == 0
     with pytest.raises(SystemExit):
         detour_rows.main(["--driven", "--dataset", str(driven), "--seeds", "54..56", "models/policy/cnn"])
+
+
+def test_stall_frames_feeds_a_narrow_cnn_that_reads_its_last_command_the_one_sent_before_each_frame(tmp_path, rng):
+    import torch
+
+    from dribble_models import stall_frames
+    from dribble_models.export import export_policy
+    from dribble_models.manifest import TrainingRecord
+    from dribble_models.networks import CameraFeatures, Filters, PreviousCommandCNN
+
+    # Commands at 100 Hz around frames at 30 Hz (nanoseconds): before the first, none.
+    commands = [(t, np.array([t / 1e9, 0.0, -t / 1e9], np.float32)) for t in range(10_000_000, 200_000_000, 10_000_000)]
+    previous, sent = stall_frames.commands_around([5_000_000, 40_000_000, 73_333_333, 250_000_000], commands)
+    assert previous[:, 0] == pytest.approx([0.0, 0.03, 0.07, 0.19])
+    assert sent[:, 0] == pytest.approx([0.01, 0.04, 0.08, 0.19])
+    assert stall_frames.commands_around([1], []) == (None, None)
+
+    torch.manual_seed(5)
+    network = PreviousCommandCNN(CameraFeatures(Filters(4, 16, 4, 8))).eval()
+    with torch.no_grad():
+        network.hidden.weight[:, -3:] *= 50.0  # the last command weighs
+    export_policy(network, tmp_path / "narrow", TrainingRecord(dataset="test", epochs=0))
+    window = stall_frames.Window(
+        seed=20008,
+        top=rng.integers(0, 256, (2, 120, 160), dtype=np.uint8),
+        bottom=rng.integers(0, 256, (2, 60, 80), dtype=np.uint8),
+        robot_pose=np.array([-0.6, 0.0, 1.9]),
+        ball=np.array([-2.4, -1.1]),
+        first_ball=np.array([-2.4, -1.1]),
+        previous=np.zeros((2, 3), np.float32),
+        sent=np.zeros((2, 3), np.float32),
+    )
+    standing = stall_frames.answers(tmp_path / "narrow", window)["mean"]
+    window.previous = np.tile(stall_frames.previous_command("0,0,1"), (2, 1))
+    turning = stall_frames.answers(tmp_path / "narrow", window)["mean"]
+    assert not np.allclose(standing, turning, atol=1e-3)
+    assert "the driving policy sent (+0.00, +0.00, +0.00)" in stall_frames.report(window, [tmp_path / "narrow"])
+    window.previous = None
+    with pytest.raises(stall_frames.StallFramesError, match="reads the last command"):
+        stall_frames.answers(tmp_path / "narrow", window)
+    with pytest.raises(Exception):
+        stall_frames.previous_command("0,0,2")
