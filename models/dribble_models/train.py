@@ -52,6 +52,12 @@ demonstrations and exports a model directory the controller loads.
 - Resumable: a checkpoint after every epoch (`--checkpoint-dir`, under ~/.cache/dribble by
   default); running the same command again continues where it stopped. Every random choice
   is seeded (`--seed`), per epoch, so a resumed run is the run it would have been.
+
+Its parts beside this file: `prediction` (each kind's commands as the robot runs it, and the
+error), `augmentation` (`--augment`, `--camera-augment`), `distillation` (`--distill-from`'s
+labels), `rcnn_windows` (the R-CNN's windows and lanes), `standardised_start` (a
+`--standardise-input` start from a `pixel / 255` model) and `training_record` (the manifest's
+notes and lineage).
 """
 
 from __future__ import annotations
