@@ -25,7 +25,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from .eval_summary import GOAL_X_M, PATH_RATE_HZ, REACHED_M
+from .eval_summary import GOAL_X_M, PATH_RATE_HZ, REACHED_M, wrap_angle
 
 #: How far off the ball-to-goal line, degrees, a push may point and still push toward the goal.
 TOWARD_GOAL_DEG = 90.0
@@ -36,10 +36,6 @@ ROLLED_S = 1.0
 #: Half the field's width, metres, and the ball's radius: the lines the ball crosses.
 HALF_WIDTH_M = 3.0
 BALL_RADIUS_M = 0.05
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
 def way_out(episode: dict) -> dict:
@@ -65,7 +61,7 @@ def way_out(episode: dict) -> dict:
     for i in window:
         robot_to_ball = math.atan2(ball[i][1] - robot[i][1], ball[i][0] - robot[i][0])
         ball_to_goal = math.atan2(-ball[i][1], goal_x - ball[i][0])
-        off.append(abs(math.degrees(_wrap(robot_to_ball - ball_to_goal))))
+        off.append(abs(math.degrees(wrap_angle(robot_to_ball - ball_to_goal))))
     off_line = sum(off) / len(off)
     way = "dribbled wide" if off_line <= TOWARD_GOAL_DEG else "carried while going around"
     return {

@@ -57,9 +57,14 @@ FAILURE_CLASSES = {
 }
 
 
+def wrap_angle(angle: float) -> float:
+    """`angle` in radians wrapped to [-pi, pi)."""
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
 def turned_rad(heading: list[float]) -> float:
     """How far the robot turned in all, either way (each step's change wrapped to ±pi)."""
-    return sum(abs((b - a + math.pi) % (2 * math.pi) - math.pi) for a, b in zip(heading, heading[1:]))
+    return sum(abs(wrap_angle(b - a)) for a, b in zip(heading, heading[1:]))
 
 
 def failure_class(summary: dict) -> str | None:

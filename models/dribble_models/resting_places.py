@@ -22,7 +22,7 @@ import math
 import sys
 from pathlib import Path
 
-from .eval_summary import PATH_RATE_HZ, summarise_episode
+from .eval_summary import PATH_RATE_HZ, summarise_episode, wrap_angle
 
 #: The stretch at an episode's end over which the robot must have stayed put, seconds.
 REST_S = 10.0
@@ -36,14 +36,10 @@ SAME_PLACE_M = 0.3
 SAME_HEADING_RAD = 0.3
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
-
-
 def _at_rest(robot: list, heading: list, start: int) -> bool:
     """Whether the robot stayed put from sample `start` to the end."""
     moved = max(math.dist(robot[start], r) for r in robot[start:])
-    turned = max(abs(_wrap(h - heading[start])) for h in heading[start:])
+    turned = max(abs(wrap_angle(h - heading[start])) for h in heading[start:])
     return moved < REST_MOVE_M and turned < REST_TURN_RAD
 
 
@@ -67,9 +63,9 @@ def resting_place(episode: dict) -> dict | None:
         "seed": episode["seed"],
         "class": summarise_episode(episode)["failure_class"],
         "since_s": round(start / PATH_RATE_HZ, 1),
-        "pose": [round(x, 2), round(y, 2), round(_wrap(theta), 2)],
+        "pose": [round(x, 2), round(y, 2), round(wrap_angle(theta), 2)],
         "ball_m": round(math.dist((x, y), (bx, by)), 2),
-        "ball_bearing_rad": round(_wrap(math.atan2(by - y, bx - x) - theta), 2),
+        "ball_bearing_rad": round(wrap_angle(math.atan2(by - y, bx - x) - theta), 2),
         "first_sighting_s": episode.get("first_sighting_s"),
     }
 
@@ -89,7 +85,7 @@ def shared_places(rows: list[dict]) -> list[list[int]]:
     for row in rows:
         x, y, theta = row["pose"]
         for (px, py, ptheta), seeds in places:
-            if math.dist((x, y), (px, py)) < SAME_PLACE_M and abs(_wrap(theta - ptheta)) < SAME_HEADING_RAD:
+            if math.dist((x, y), (px, py)) < SAME_PLACE_M and abs(wrap_angle(theta - ptheta)) < SAME_HEADING_RAD:
                 seeds.append(row["seed"])
                 break
         else:
