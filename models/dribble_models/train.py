@@ -79,7 +79,7 @@ from tqdm import tqdm
 
 from . import contract
 from .augmentation import Augment, CameraAugment
-from .dataset import Dataset, DatasetError, Episode, load, read_index
+from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .distillation import distilled_labels
 from .export import export_policy
 from .gating import fit_centroids
@@ -371,10 +371,16 @@ class Training:
             **({"distill_camera_clean": True} if a.distill_camera_clean else {}),
             **({"validate_distilled": True} if a.validate_distilled else {}),
             **({"one_way_detour": True} if a.one_way_detour else {}),
-            **({"previous_command": {"noise": a.previous_noise, **({"dropout": a.previous_dropout} if a.previous_dropout > 0 else {})}} if a.previous_command else {}),
+            **({"previous_command": {"noise": a.previous_noise, **self.previous_dropout_record()}} if a.previous_command else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
             **({"keep_branches": True} if a.keep_branches else {}),
         }
+
+    def previous_dropout_record(self) -> dict:
+        a = self.args
+        if a.previous_dropout == 0:
+            return {}
+        return {"dropout": a.previous_dropout, **({"dropout_phases": list(a.previous_dropout_phases)} if a.previous_dropout_phases != PHASES else {})}
 
     def save(self, path: Path) -> None:
         state = {
@@ -432,6 +438,11 @@ class Training:
             # stands (an episode's start, after a stop) its images must say what to do, or a
             # network that copies its last command never starts walking.
             dropped = torch.rand(len(previous), 1, generator=generator) < self.args.previous_dropout
+            if self.args.previous_dropout_phases != PHASES:
+                # Only in the teacher's phases named (--previous-dropout-phases): elsewhere the
+                # last command keeps what the images cannot show (which way around the ball).
+                named = [PHASES.index(p) for p in self.args.previous_dropout_phases]
+                dropped &= torch.from_numpy(np.isin(self.rows.phase[index], named)).unsqueeze(1)
             previous = torch.where(dropped, torch.zeros_like(previous), previous)
         return previous.to(self.device)
 
@@ -642,6 +653,7 @@ class TrainingConfig:
     previous_command: bool = False
     previous_noise: float = 0.2
     previous_dropout: float = 0.0
+    previous_dropout_phases: tuple[str, ...] = PHASES
     keep_branches: bool = False
     test_dataset: Path | None = None
     epochs: int = 0
@@ -673,7 +685,19 @@ class TrainingConfig:
     def from_namespace(cls, namespace: argparse.Namespace) -> "TrainingConfig":
         """The configuration `parse_args`' parser read (every field named as its option)."""
         values = vars(namespace)
-        return cls(**{f.name: values[f.name] for f in fields(cls)} | {"add_dataset": tuple(values["add_dataset"])})
+        return cls(
+            **{f.name: values[f.name] for f in fields(cls)}
+            | {"add_dataset": tuple(values["add_dataset"]), "previous_dropout_phases": tuple(values["previous_dropout_phases"])}
+        )
+
+
+def phase_list(text: str) -> tuple[str, ...]:
+    """A comma list of the teacher's phases (dataset.PHASES), kept in their order."""
+    named = {p.strip() for p in text.split(",") if p.strip()}
+    unknown = named - set(PHASES)
+    if not named or unknown:
+        raise argparse.ArgumentTypeError(f"phases are a comma list of {', '.join(PHASES)} (got {text!r})")
+    return tuple(p for p in PHASES if p in named)
 
 
 def parse_args(argv: list[str] | None = None) -> TrainingConfig:
@@ -696,6 +720,13 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
     parser.add_argument("--previous-command", action="store_true", help="CNN: the network also reads the command the controller sent last (a third input, [inputs] previous: beyond the paper), fed on each row the command the recording executed at the row before; a one-output CNN start begins as its own function, the new weights zero (PreviousCommandCNN)")
     parser.add_argument("--previous-noise", type=float, default=0.2, metavar="SIGMA", help="with --previous-command: Gaussian noise on the last command of training rows, in normalised units (default 0.2)")
     parser.add_argument("--previous-dropout", type=float, default=0.0, metavar="SHARE", help="with --previous-command: this share of training rows is given a stop as the last command, so that a standing robot's images say what to do (against the copycat that never starts; default 0)")
+    parser.add_argument(
+        "--previous-dropout-phases",
+        type=phase_list,
+        default=PHASES,
+        metavar="P,Q",
+        help="with --previous-dropout: only rows in these teacher's phases (a comma list of " + ", ".join(PHASES) + ") are given the stop; default all",
+    )
     parser.add_argument("--keep-branches", action="store_true", help="CNN with --init-from: the start's camera branches stay as they are and only the dense layers learn (with --previous-command, the new input's weights too), so the network keeps reading its images as the start did; augmentation still reaches the branches' input")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
@@ -766,6 +797,8 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--previous-noise is a standard deviation, not negative")
     if not 0.0 <= args.previous_dropout <= 1.0:
         parser.error("--previous-dropout is a share of the rows, in [0, 1]")
+    if args.previous_dropout_phases != PHASES and args.previous_dropout == 0:
+        parser.error("--previous-dropout-phases names where --previous-dropout's stop is given: give a share too")
     if (args.previous_noise != 0.2 or args.previous_dropout > 0) and not args.previous_command:
         parser.error("--previous-noise and --previous-dropout shape --previous-command's last command: give it")
     if args.prune_from is not None and args.init_from is not None:

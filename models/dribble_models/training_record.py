@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from .dataset import DatasetError, read_index
+from .dataset import PHASES, DatasetError, read_index
 from .manifest import Lineage, ModelReference
 from .networks import PAPER_FILTERS
 from .one_way_detour import AT_BALL_M
@@ -60,6 +60,13 @@ def added_description(directory: Path) -> str:
     except DatasetError:
         return directory.name
     return f"{directory.name} ({driven})"
+
+
+def dropout_phases(args: TrainingConfig) -> str:
+    """Where `--previous-dropout-phases` narrows the stop to some of the teacher's phases, which."""
+    if args.previous_dropout_phases == PHASES:
+        return ""
+    return " in the teacher's " + " and ".join(args.previous_dropout_phases) + " phase" + ("s" if len(args.previous_dropout_phases) > 1 else "")
 
 
 def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: bool = False, widened: bool = False) -> str:
@@ -113,7 +120,7 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: b
         parts.append(
             f"the last command sent is a third input ([inputs] previous; PreviousCommandCNN): on each row the command executed "
             f"at the row before, perturbed on training rows by Gaussian noise of {args.previous_noise:g}"
-            + (f", a stop in its place on {args.previous_dropout:.0%} of them" if args.previous_dropout > 0 else "")
+            + (f", a stop in its place on {args.previous_dropout:.0%} of them{dropout_phases(args)}" if args.previous_dropout > 0 else "")
         )
     if args.keep_branches:
         parts.append("the start's camera branches kept as they are, only the dense layers trained")

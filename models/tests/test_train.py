@@ -690,6 +690,18 @@ def test_the_last_command_is_perturbed_and_dropped_on_training_rows_as_asked(tmp
     assert "a stop in its place on 50% of them" in notes_of(parse_args([*common, "--previous-dropout", "0.5"]))
     with pytest.raises(SystemExit):
         parse_args(["--kind", "cnn", "--previous-dropout", "0.5", "--dataset", str(data), "--out", "o"])
+    # Narrowed to the teacher's search phase: every search row there gets the stop, no other row.
+    narrowed = [*common, "--previous-noise", "0", "--previous-dropout", "1", "--previous-dropout-phases", "search"]
+    searching = Training(parse_args(narrowed), ds.load(data))
+    given = searching.batch_previous(index, torch.Generator().manual_seed(0)).numpy()
+    search = searching.rows.phase[index] == 0
+    assert 0 < search.sum() < len(index)
+    np.testing.assert_array_equal(given[search], 0)
+    np.testing.assert_array_equal(given[~search], searching.rows.previous[index][~search])
+    assert "a stop in its place on 100% of them in the teacher's search phase" in notes_of(parse_args(narrowed))
+    for wrong in (["--previous-dropout-phases", "search"], ["--previous-dropout", "0.5", "--previous-dropout-phases", "walking"]):
+        with pytest.raises(SystemExit):
+            parse_args([*common, *wrong])
 
 
 def test_kept_branches_stay_the_starts_while_the_dense_layers_learn(tmp_path, rng):
