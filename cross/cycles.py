@@ -267,7 +267,9 @@ def string_iteration_cycles(text: str, mcpu: str) -> float:
 #: same instructions twice (tract's hash maps are seeded at random: two loads of the robot
 #: package's model differ by about 80,000 instructions), and over ten steps that difference
 #: passed for a tenth of it in each step: a 23,000-instruction layer counted as 50,000. Over
-#: a hundred steps it is a hundredth.
+#: a hundred steps it is a hundredth. The whole tick is counted over as many: over ten, the
+#: same package's V6 tick counted 929,256 and 917,060 cycles, and another weight set of the
+#: same network 969,221 and 916,128, a swing larger than the margin its budget was judged by.
 LAYER_STEPS = 100
 
 
@@ -500,7 +502,8 @@ def profile(args) -> None:
     int8 = any(row["name"].startswith("int8") for row in layers)
     peak = peak_multiply_adds_per_cycle(args.triple, args.mcpu, int8)
     print(f"  whole tick ...", file=sys.stderr)
-    tick = estimate(args.binary, ["--isa", args.isa, "forward", "--policy", policy, "--whole-tick"], args.triple, args.mcpu, runner)
+    tick = estimate(args.binary, ["--isa", args.isa, "forward", "--policy", policy, "--whole-tick"], args.triple, args.mcpu, runner,
+                    steps=LAYER_STEPS)
     rows = []
     for row in layers:
         print(f"  layer {row['index']}: {row['name']} ...", file=sys.stderr)
@@ -527,8 +530,7 @@ def profile(args) -> None:
         "layers": rows,
         "networks_sha256": [hashlib.sha256((directory / n).read_bytes()).hexdigest() for n in networks],
         "commit": commit + (" (with uncommitted changes)" if dirty else ""),
-        "method": "callgrind counts of one step (a tick: 11 steps - 1, over ten; a layer: 101 - 1, over a "
-                  "hundred) x llvm-mca steady-state cycles per block (cross/cycles.py); no cache misses or "
+        "method": "callgrind counts of one step (a tick or a layer: 101 steps - 1, over a hundred) x llvm-mca steady-state cycles per block (cross/cycles.py); no cache misses or "
                   "mispredicted branches",
     }
     Path(args.out).write_text(json.dumps(record, indent=2) + "\n")
