@@ -530,8 +530,8 @@ def profile(args) -> None:
         "layers": rows,
         "networks_sha256": [hashlib.sha256((directory / n).read_bytes()).hexdigest() for n in networks],
         "commit": commit + (" (with uncommitted changes)" if dirty else ""),
-        "method": "callgrind counts of one step (a tick or a layer: 101 steps - 1, over a hundred) x llvm-mca steady-state cycles per block (cross/cycles.py); no cache misses or "
-                  "mispredicted branches",
+        "method": "callgrind counts of one step (a tick or a layer: 101 steps - 1, over a hundred) x llvm-mca "
+                  "steady-state cycles per block (cross/cycles.py); no cache misses or mispredicted branches",
     }
     Path(args.out).write_text(json.dumps(record, indent=2) + "\n")
     ms = tick["cycles"] / (args.ghz * 1e6)

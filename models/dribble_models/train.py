@@ -437,12 +437,11 @@ class Training:
             # A stop in place of the last command on a share of the rows: where the robot
             # stands (an episode's start, after a stop) its images must say what to do, or a
             # network that copies its last command never starts walking.
+            # Only in the teacher's phases named (--previous-dropout-phases, all by default):
+            # elsewhere the last command keeps what the images cannot show (which way around the ball).
             dropped = torch.rand(len(previous), 1, generator=generator) < self.args.previous_dropout
-            if self.args.previous_dropout_phases != PHASES:
-                # Only in the teacher's phases named (--previous-dropout-phases): elsewhere the
-                # last command keeps what the images cannot show (which way around the ball).
-                named = [PHASES.index(p) for p in self.args.previous_dropout_phases]
-                dropped &= torch.from_numpy(np.isin(self.rows.phase[index], named)).unsqueeze(1)
+            named = [PHASES.index(p) for p in self.args.previous_dropout_phases]
+            dropped &= torch.from_numpy(np.isin(self.rows.phase[index], named)).unsqueeze(1)
             previous = torch.where(dropped, torch.zeros_like(previous), previous)
         return previous.to(self.device)
 
@@ -685,10 +684,7 @@ class TrainingConfig:
     def from_namespace(cls, namespace: argparse.Namespace) -> "TrainingConfig":
         """The configuration `parse_args`' parser read (every field named as its option)."""
         values = vars(namespace)
-        return cls(
-            **{f.name: values[f.name] for f in fields(cls)}
-            | {"add_dataset": tuple(values["add_dataset"]), "previous_dropout_phases": tuple(values["previous_dropout_phases"])}
-        )
+        return cls(**{f.name: values[f.name] for f in fields(cls)} | {"add_dataset": tuple(values["add_dataset"])})
 
 
 def phase_list(text: str) -> tuple[str, ...]:
