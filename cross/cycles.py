@@ -493,10 +493,26 @@ def peak_multiply_adds_per_cycle(triple: str, mcpu: str, int8: bool) -> float:
     return 3 * per_chain / cycles
 
 
+def require_host_check_model() -> None:
+    """Refuses a profile by another LLVM than the host check's: the robot's tick is judged by
+    that check's error band (shipping_rules.pipeline_tick_ms), measured for one LLVM's models,
+    and candidates compared on counts of two LLVMs differ by the models, not the code."""
+    check = REPO / "models" / "performance" / "host-check.json"
+    if not check.is_file():
+        return
+    wanted = json.loads(check.read_text()).get("model")
+    have = llvm_mca_version()
+    if wanted and have != wanted:
+        sys.exit(f"cross/cycles.py: {llvm_mca()} is {have}, but {check} was measured with {wanted}; "
+                 f"install that one (Debian: apt-get install llvm-{wanted.split()[-1].split('.')[0]}) or "
+                 f"check the method again with this one (python3 cross/cycles.py check --out {check})")
+
+
 def profile(args) -> None:
     """A build's whole computing tick and each layer of `args.policy` on the core's model."""
     runner = args.runner.split() if args.runner else []
     policy = args.policy
+    require_host_check_model()
     listing = run_text([*runner, args.binary, "--isa", args.isa, "forward", "--policy", policy, "--layers", "--steps", "1"])
     layers = json.loads(next(l for l in listing.splitlines() if l.startswith("layers "))[len("layers "):])["steps"]
     int8 = any(row["name"].startswith("int8") for row in layers)

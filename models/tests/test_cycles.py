@@ -92,3 +92,18 @@ def test_an_amd_host_is_modelled_by_its_zen_generation():
     assert cycles.amd_mcpu(0x19, 0x21) == "znver3"  # Vermeer
     assert cycles.amd_mcpu(0x19, 0x61) == "znver4"  # Raphael
     assert cycles.amd_mcpu(0x1A, 0x02) == "znver5"
+
+
+def test_a_profile_by_another_llvm_than_the_host_checks_is_refused(tmp_path, monkeypatch):
+    import pytest
+
+    cycles = cycles_tool()
+    (tmp_path / "models" / "performance").mkdir(parents=True)
+    (tmp_path / "models" / "performance" / "host-check.json").write_text(json.dumps({"model": "llvm-mca 22.1.8"}))
+    monkeypatch.setattr(cycles, "REPO", tmp_path)
+    monkeypatch.setattr(cycles, "llvm_mca", lambda: "llvm-mca-14")
+    monkeypatch.setattr(cycles, "llvm_mca_version", lambda: "llvm-mca 14.0.6")
+    with pytest.raises(SystemExit, match="apt-get install llvm-22"):
+        cycles.require_host_check_model()
+    monkeypatch.setattr(cycles, "llvm_mca_version", lambda: "llvm-mca 22.1.8")
+    cycles.require_host_check_model()

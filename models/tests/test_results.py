@@ -274,14 +274,16 @@ def test_a_lerobot_learning_curve_is_a_row_with_its_best_checkpoint(tmp_path):
         lerobot_curves(tmp_path)
 
 
-def _profile(models: Path, name: str, build: str, cycles: int, ghz: float, p10: float) -> None:
-    """`cross/cycles`' profile of a policy's tick and the host check's error band."""
+def _profile(models: Path, name: str, build: str, cycles: int, ghz: float, p10: float, llvm: str = "llvm-mca 22.1.8") -> None:
+    """`cross/cycles`' profile of a policy's tick (by `llvm`) and the host check's error band
+    (by LLVM 22)."""
     performance = models.parent / "performance"
     performance.mkdir(exist_ok=True)
     networks = [hashlib.sha256((models / name / "policy.onnx").read_bytes()).hexdigest()]
     (performance / f"{build}-{name}.json").write_text(
-        json.dumps({"build": build, "ghz": ghz, "tick": {"cycles": cycles}, "networks_sha256": networks}))
-    (performance / "host-check.json").write_text(json.dumps({"error_p10": p10, "error_p90": 0.9}))
+        json.dumps({"build": build, "ghz": ghz, "model": llvm, "tick": {"cycles": cycles}, "networks_sha256": networks}))
+    (performance / "host-check.json").write_text(
+        json.dumps({"model": "llvm-mca 22.1.8", "error_p10": p10, "error_p90": 0.9}))
 
 
 def test_the_pipeline_models_slow_end_judges_the_tick_where_the_networks_were_profiled(tmp_path):
@@ -301,6 +303,11 @@ def test_the_pipeline_models_slow_end_judges_the_tick_where_the_networks_were_pr
     _profile(models, "narrow-int8", "v6", 1_000_000, 1.91, -0.2)
     name, why = shipping_rules.robot_policy(shipped)
     assert name == "narrow-int8" and "and the V6 tick" not in why and "V6: 0.65 ms of 0.6" in why
+    # A profile by another LLVM than the host check's is not judged by that check's band: the
+    # flat count judges the tick again.
+    _profile(models, "narrow-int8", "v6", 1_000_000, 1.91, -0.2, llvm="llvm-mca 14.0.6")
+    name, why = shipping_rules.robot_policy(shipped)
+    assert name == "narrow-int8" and "and the V6 tick" in why and "V6: 1,000,000 instructions of" in why
     # Over the V5's budget by the pipeline model it is no candidate, whatever its count says.
     _profile(models, "narrow-int8", "v5", 2_600_000, 1.6, 0.0)
     assert shipping_rules.robot_policy(shipped)[0] == "best"
