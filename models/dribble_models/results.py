@@ -186,7 +186,8 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-24-epochs", "cnn-modal", "cnn-modal-dagger4
         "cnn-8-16-4-8-distilled-dagger2-observable-int8", "cnn-4-16-4-8-distilled-dagger2-observable-int8",
         "cnn-conditions-4-16-4-8-int8", "cnn-conditions-previous-whole-dagger1-4-16-4-8-int8",
         "cnn-conditions-previous-whole-venue-light-4-16-4-8-int8",
-        "cnn-conditions-previous-whole-venue-light-own-detour5-4-16-4-8-int8")
+        "cnn-conditions-previous-whole-venue-light-own-detour5-4-16-4-8-int8",
+        "cnn-conditions-previous-whole-venue-light-own-detour5-search-dropout20-4-16-4-8-int8")
 
 
 def row_directories(models: Path, name: str) -> list[Path]:
