@@ -495,8 +495,8 @@ def peak_multiply_adds_per_cycle(triple: str, mcpu: str, int8: bool) -> float:
 
 def require_host_check_model() -> None:
     """Refuses a profile by another LLVM than the host check's: the robot's tick is judged by
-    that check's error band (shipping_rules.pipeline_tick_ms), measured for one LLVM's models,
-    and candidates compared on counts of two LLVMs differ by the models, not the code."""
+    that check's error band (shipping_rules.pipeline_tick_ms), measured for one LLVM's core
+    models, and the rule reads no profile of another."""
     check = REPO / "models" / "performance" / "host-check.json"
     if not check.is_file():
         return

@@ -192,15 +192,17 @@ def pipeline_tick_ms(directory: Path, build: str) -> float | None:
     holds now) over one plus the host check's tenth-percentile error
     (models/performance/host-check.json: a model that over-counted the host by that much is
     taken to over-count the robot as much), at the robot's clock. None without both files, and
-    where the profile was made with another LLVM than the check: that band belongs to one
-    LLVM's models, and two LLVMs' counts of the same code differ (the V6 tick of one package by
-    more than its margin), so candidates are compared on one LLVM's counts only."""
+    where the profile was made with another LLVM than the check: that band was measured for
+    one LLVM's core models, so candidates are judged and compared on that LLVM's counts only."""
     performance = directory.parent.parent / "performance"
     profile = read_json(performance / f"{build}-{directory.name}.json")
     check = read_json(performance / "host-check.json")
-    if profile is None or check is None or profile.get("networks_sha256") != networks_sha256(directory):
-        return None
-    if profile.get("model") != check.get("model"):
+    if (
+        profile is None
+        or check is None
+        or profile.get("networks_sha256") != networks_sha256(directory)
+        or profile.get("model") != check.get("model")
+    ):
         return None
     return profile["tick"]["cycles"] / (1 + check["error_p10"]) / (profile["ghz"] * 1e9) * 1e3
 

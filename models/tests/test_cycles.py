@@ -4,6 +4,8 @@ import importlib.util
 import json
 from pathlib import Path
 
+import pytest
+
 from dribble_models import cycles_report
 
 REPOSITORY = Path(__file__).resolve().parents[2]
@@ -95,8 +97,6 @@ def test_an_amd_host_is_modelled_by_its_zen_generation():
 
 
 def test_a_profile_by_another_llvm_than_the_host_checks_is_refused(tmp_path, monkeypatch):
-    import pytest
-
     cycles = cycles_tool()
     (tmp_path / "models" / "performance").mkdir(parents=True)
     (tmp_path / "models" / "performance" / "host-check.json").write_text(json.dumps({"model": "llvm-mca 22.1.8"}))
