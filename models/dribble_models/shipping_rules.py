@@ -19,7 +19,11 @@ selection seeds 20000..20049 once they are run; the retired 90..99 before). A ca
 without a `select.json`, or with one on other seeds, is ranked after every candidate on the
 chosen set, and the reason says so: its run must be repeated to compete. Candidates on the
 same seeds but run by different engines cannot be compared (a closed loop amplifies an
-engine's rounding): that is refused.
+engine's rounding): that is refused. What counts as the engine is what the evaluation chose:
+the compiled engine or another, and the instruction set (`engine_of`); the kernels the
+compiled engine lowers a network to (Winograd's filtering for wide 3x3 convolutions, integer
+kernels for an int8 network) follow from that network's own layers, so they are part of the
+candidate as it ships, not a choice that makes two candidates incomparable.
 """
 
 from __future__ import annotations
@@ -116,6 +120,23 @@ class Candidate:
         )
 
 
+#: The tags of an engine label (controller/src/policy/learned.rs, `EngineReport`) that name
+#: the kernels the compiled engine lowered a network to: a function of the network's layers
+#: and the instruction set, the same for every run of that network.
+NETWORK_KERNEL_TAGS = ("winograd", "int8")
+
+
+def engine_of(label: str | None) -> str | None:
+    """An evaluation's engine and instruction set without the kernel tags that follow from
+    the network itself: "compiled (avx2+fma, winograd)" and "compiled (avx2+fma)" are one
+    engine ("compiled (avx2+fma)"); "compiled (avx512)", "tract" and None are others."""
+    if label is None or not label.endswith(")") or " (" not in label:
+        return label
+    name, _, inside = label[:-1].partition(" (")
+    kept = [part.strip() for part in inside.split(",") if part.strip() not in NETWORK_KERNEL_TAGS]
+    return f"{name} ({', '.join(kept)})" if kept else name
+
+
 def describe(seeds: tuple[int, ...]) -> str:
     return f"{seeds[0]}..{seeds[-1]} ({len(seeds)})"
 
@@ -144,7 +165,7 @@ def choose(candidates: list[Candidate]) -> Candidate:
     runs = [(c.name, c.selection) for c in candidates if c.on(seeds)]
     if conditions:
         runs += [(c.name, c.randomized) for c in candidates if c.randomized_on(seeds)]
-    if len({run.engine for _, run in runs}) > 1:
+    if len({engine_of(run.engine) for _, run in runs}) > 1:
         described = "; ".join(f"{name}: {run.engine}" for name, run in runs)
         raise SelectionError(f"the candidates' selection runs on {describe(seeds)} were run by different engines, run them again with one: {described}")
     return min(candidates, key=lambda c: c.key(seeds, conditions))

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from dribble_models import dagger_report, results
-from dribble_models.shipping_rules import Candidate, SelectionError, choose, read_selection
+from dribble_models.shipping_rules import Candidate, SelectionError, choose, engine_of, read_selection
 
 
 def write_run(path: Path, seeds, goals: set[int]) -> Path:
@@ -79,6 +79,26 @@ def test_runs_by_different_engines_on_the_same_seeds_are_refused(tmp_path):
     b = read_selection(path)
     with pytest.raises(SelectionError, match="different engines"):
         choose([Candidate("a", a, 0.1), Candidate("b", b, 0.1)])
+
+
+def test_kernels_a_network_lowers_to_do_not_make_candidates_incomparable(tmp_path):
+    # A wide float network runs Winograd's filtering, a narrow one the direct sum, an int8 one
+    # integer kernels: each as it ships, on the one engine and instruction set the evaluation
+    # chose; compared. Another instruction set or another engine is still refused.
+    def run(name, label, goals):
+        path = write_run(tmp_path / f"{name}.json", range(20000, 20050), set(range(20000, 20000 + goals)))
+        path.write_text(path.read_text().replace("compiled (avx2+fma)", label))
+        return read_selection(path)
+
+    wide = Candidate("wide", run("wide", "compiled (avx2+fma, winograd)", 40), 0.1)
+    narrow = Candidate("narrow", run("narrow", "compiled (avx2+fma)", 42), 0.2)
+    assert choose([wide, narrow]).name == "narrow"
+    assert engine_of("compiled (avx2+fma, int8)") == engine_of("compiled (avx2+fma)") == "compiled (avx2+fma)"
+    assert engine_of("compiled (avx512, winograd)") == "compiled (avx512)"
+    assert engine_of("tract") == "tract" and engine_of(None) is None
+    other_isa = Candidate("other", run("other", "compiled (avx512, winograd)", 45), 0.1)
+    with pytest.raises(SelectionError, match="different engines"):
+        choose([wide, narrow, other_isa])
 
 
 def test_under_randomized_conditions_clean_and_randomized_goals_count_together(tmp_path):
