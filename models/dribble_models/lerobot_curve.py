@@ -40,6 +40,7 @@ import sys
 import time
 import tomllib
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -202,8 +203,14 @@ def reference_error(policy: Path, episodes: list[Episode], seeds: list[int]) -> 
 
 def constant_error(training: Path, episodes: list[Episode]) -> dict:
     """The error of one constant command, the training rows' per-component median, on the
-    held-out rows: what a network that has not yet learned to read its images scores."""
-    command = np.median(np.concatenate([e.command for e in load(training).episodes]), axis=0)
+    held-out rows: what a network that has not yet learned to read its images scores. Where
+    the training dataset also holds the held-out episodes (an export's whole source, split
+    by its `info.json`), they take no part in the median."""
+    held_out = {e.seed for e in episodes}
+    rows = [e.command for e in load(training).episodes if e.seed not in held_out]
+    if not rows:
+        raise ValueError(f"{training}: no episodes besides the held-out ones to take a constant command from")
+    command = np.median(np.concatenate(rows), axis=0)
     errors = np.concatenate([row_errors(np.repeat(command[None], len(e.command), axis=0), e.command) for e in episodes])
     return {"command": [round(float(c), 4) for c in command], "error": float(errors.mean()), "training": str(training)}
 
@@ -242,7 +249,16 @@ def plot(summary: dict, out: Path) -> None:
     plt.close(figure)
 
 
-def curve(run: Path, log: Path, dataset: Path, seeds: range, reference: Path | None, kept: dict | None, training: Path | None = None) -> dict:
+def curve(
+    run: Path,
+    log: Path,
+    dataset: Path,
+    seeds: range,
+    reference: Path | None,
+    kept: dict | None,
+    training: Path | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> dict:
     episodes = load(dataset, require_seeds=list(seeds)).episodes
     episodes = [e for e in episodes if e.seed in seeds]
     scored = {c["step"]: c for c in (kept or {}).get("checkpoints", []) if kept and kept.get("seeds") == f"{seeds.start}..{seeds.stop - 1}"}
@@ -251,6 +267,8 @@ def curve(run: Path, log: Path, dataset: Path, seeds: range, reference: Path | N
             started = time.monotonic()
             scored[step] = {"step": step, **validation_error(model, episodes), "seconds": round(time.monotonic() - started, 1)}
             print(f"step {step}: validation error {scored[step]['error']:.4f}", file=sys.stderr)
+            if progress is not None:
+                progress({"seeds": f"{seeds.start}..{seeds.stop - 1}", "checkpoints": [scored[s] for s in sorted(scored)]})
     # The trainer's configuration where it saved one (the policy's own config.json else).
     config, policy = {}, {}
     last = checkpoints(run)
@@ -290,11 +308,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not (args.run / "checkpoints").is_dir():
         parser.error(f"{args.run} has no checkpoints/: not a lerobot-train output directory")
-    kept = json.loads(args.out.read_text()) if args.out.is_file() else None
+    # Each checkpoint scored is kept in OUT.partial as it ends (scoring one takes minutes on
+    # a CPU), so a run cut off goes on from there.
+    partial = args.out.with_name(args.out.name + ".partial")
+    kept = next((json.loads(p.read_text()) for p in (args.out, partial) if p.is_file()), None)
     log = args.log or args.run.with_name(args.run.name + ".log")
-    summary = curve(args.run, log, args.dataset, args.seeds, args.reference, kept, args.training_dataset)
     args.out.parent.mkdir(parents=True, exist_ok=True)
+
+    def keep(scored: dict) -> None:
+        partial.write_text(json.dumps({**(kept or {}), **scored}, indent=1) + "\n")
+
+    summary = curve(args.run, log, args.dataset, args.seeds, args.reference, kept, args.training_dataset, keep)
     args.out.write_text(json.dumps(summary, indent=1) + "\n")
+    partial.unlink(missing_ok=True)
     if args.plot:
         plot(summary, args.plot)
     for c in summary["checkpoints"]:

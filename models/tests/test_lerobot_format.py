@@ -210,6 +210,21 @@ def test_checkpoints_are_the_numbered_ones_with_weights(tmp_path):
     assert [step for step, _ in lerobot_curve.checkpoints(tmp_path)] == [2, 10]
 
 
+
+def test_the_constant_command_is_the_median_of_the_training_episodes_only(tmp_path):
+    # An export's whole source holds the held-out episodes too: they take no part in the
+    # constant command a run is compared with.
+    from dribble_models import lerobot_curve
+
+    trained, held_out = episode(1, 5), episode(2, 7)
+    trained.command[:] = 0.5
+    held_out.command[:] = -0.5
+    lerobot_format.write_dribble([(trained, {}), (held_out, {})], tmp_path / "whole", teacher="observable")
+    constant = lerobot_curve.constant_error(tmp_path / "whole", [held_out])
+    assert constant["command"] == [0.5, 0.5, 0.5]
+    with pytest.raises(ValueError, match="besides the held-out"):
+        lerobot_curve.constant_error(tmp_path / "whole", [held_out, trained])
+
 SELECT_ACTION_AGREES = """
 import sys
 from pathlib import Path
@@ -249,10 +264,11 @@ def test_the_curves_commands_are_what_lerobots_select_action_sends(tmp_path):
         capture_output=True, text=True, env=environment,
     )  # fmt: skip
     assert agreed.returncode == 0, agreed.stderr[-2000:]
+    lerobot_format.write_dribble([(episode(8, 30), {})], tmp_path / "training", teacher="detector")
     curve = tmp_path / "curve.json"
     scored = subprocess.run(
         [str(REPOSITORY / "scripts" / "lerobot"), "curve", str(tmp_path / "run"), "--dataset", str(tmp_path / "data"),
-         "--seeds", "7..8", "--training-dataset", str(tmp_path / "data"), "--out", str(curve)],
+         "--seeds", "7..8", "--training-dataset", str(tmp_path / "training"), "--out", str(curve)],
         capture_output=True, text=True,
     )  # fmt: skip
     assert scored.returncode == 0, scored.stderr[-2000:]
@@ -261,9 +277,9 @@ def test_the_curves_commands_are_what_lerobots_select_action_sends(tmp_path):
     assert point["step"] == 2 and point["rows"] == 70 and 0.0 < point["error"] < 2 * np.sqrt(3)
     assert point["teacher_spread"] == [round(float(v), 4) for v in episode(7, 70).command.std(axis=0)]
     assert len(point["command_spread"]) == 3 and min(point["command_spread"]) >= 0.0
-    # One constant command, the training rows' median, scored on the same rows.
+    # One constant command, the training rows' median, scored on the held-out rows.
     rows = episode(7, 70).command
-    median = np.median(rows, axis=0)
+    median = np.median(episode(8, 30).command, axis=0)
     assert summary["constant"]["command"] == [round(float(c), 4) for c in median]
     assert abs(summary["constant"]["error"] - float(np.sqrt(((rows - median) ** 2).sum(axis=1)).mean())) < 1e-6
     assert summary["forward"]["step"] == 2 and summary["forward"]["median_ms"] > 0
