@@ -261,14 +261,15 @@ def curve(
 ) -> dict:
     episodes = load(dataset, require_seeds=list(seeds)).episodes
     episodes = [e for e in episodes if e.seed in seeds]
-    scored = {c["step"]: c for c in (kept or {}).get("checkpoints", []) if kept and kept.get("seeds") == f"{seeds.start}..{seeds.stop - 1}"}
+    held_out = f"{seeds.start}..{seeds.stop - 1}"
+    scored = {c["step"]: c for c in (kept or {}).get("checkpoints", []) if kept and kept.get("seeds") == held_out}
     for step, model in checkpoints(run):
         if step not in scored:
             started = time.monotonic()
             scored[step] = {"step": step, **validation_error(model, episodes), "seconds": round(time.monotonic() - started, 1)}
             print(f"step {step}: validation error {scored[step]['error']:.4f}", file=sys.stderr)
             if progress is not None:
-                progress({"seeds": f"{seeds.start}..{seeds.stop - 1}", "checkpoints": [scored[s] for s in sorted(scored)]})
+                progress({"seeds": held_out, "checkpoints": [scored[s] for s in sorted(scored)]})
     # The trainer's configuration where it saved one (the policy's own config.json else).
     config, policy = {}, {}
     last = checkpoints(run)
@@ -281,7 +282,7 @@ def curve(
         "run": str(run),
         "title": f"LeRobot {policy.get('type', '?')} ({policy.get('vision_backbone', '?')}, lr {policy.get('optimizer_lr', '?')}) on {Path(config.get('dataset', {}).get('root', '?')).name}",
         "dataset": str(dataset),
-        "seeds": f"{seeds.start}..{seeds.stop - 1}",
+        "seeds": held_out,
         "batch_size": config.get("batch_size"),
         "training": training_log(log) if log.is_file() else [],
         "checkpoints": [scored[s] for s in sorted(scored)],

@@ -210,7 +210,6 @@ def test_checkpoints_are_the_numbered_ones_with_weights(tmp_path):
     assert [step for step, _ in lerobot_curve.checkpoints(tmp_path)] == [2, 10]
 
 
-
 def test_the_constant_command_is_the_median_of_the_training_episodes_only(tmp_path):
     # An export's whole source holds the held-out episodes too: they take no part in the
     # constant command a run is compared with.
@@ -224,6 +223,7 @@ def test_the_constant_command_is_the_median_of_the_training_episodes_only(tmp_pa
     assert constant["command"] == [0.5, 0.5, 0.5]
     with pytest.raises(ValueError, match="besides the held-out"):
         lerobot_curve.constant_error(tmp_path / "whole", [held_out, trained])
+
 
 SELECT_ACTION_AGREES = """
 import sys
