@@ -27,15 +27,20 @@
   LeRobot's own classes and plays through its own saved pre- and post-processors
   (normalisation of images, state and action), on the CPU.
 
-LeRobot picks the seeds: `start_seed`, then one more per episode. The summary written has
-one row per seed with LeRobot's success and dribble's outcome, the goals with their Wilson
-interval, and the time taken. Runs only in LeRobot's environment (`scripts/lerobot`).
+LeRobot seeds each episode (`start_seed`); it is called once a seed, so each finished
+episode is written to a journal (`OUT.partial/SEED.json`) before the next starts, and a run
+cut off continues from there when the same command runs again (a journal of another policy,
+condition, limit or chunking is refused). `--jobs N` plays N episodes at once, each job a
+process of its own with one torch thread. The summary written has one row per seed with
+LeRobot's success and dribble's outcome, the goals with their Wilson interval, and the time
+taken. Runs only in LeRobot's environment (`scripts/lerobot`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -280,29 +285,98 @@ def policy_and_processors(model: Path, action_steps: int | None = None):
     return policy, preprocessor, postprocessor, f"LeRobot {config.type}"
 
 
-def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 90.0, action_steps: int | None = None) -> dict:
-    """LeRobot's `make_env` and `eval_policy` on `seeds`, one episode at a time."""
+def run_key(model: Path, conditions: str, time_limit_s: float, action_steps: int | None) -> dict:
+    """What makes two episodes parts of one run: a journal holding another run's is refused."""
+    return {"policy": str(model), "conditions": conditions, "time_limit_s": time_limit_s, "action_steps": action_steps}
+
+
+def journaled(journal: Path, key: dict) -> dict[int, dict]:
+    """The episodes a cut-off run left in `journal` (one `SEED.json` each), by seed."""
+    episodes = {}
+    for path in sorted(journal.glob("*.json")) if journal.is_dir() else []:
+        row = json.loads(path.read_text())
+        if row.get("run") != key:
+            raise ValueError(f"{path} is an episode of another run ({row.get('run')}); remove {journal} to start again")
+        episodes[int(row["seed"])] = {name: value for name, value in row.items() if name != "run"}
+    return episodes
+
+
+def play(model: Path, seeds: list[int], conditions: str, time_limit_s: float, action_steps: int | None, journal: Path, threads: int | None = None) -> None:
+    """LeRobot's `make_env` and `eval_policy` on each of `seeds`, one episode at a time, each
+    finished episode written to `journal` (`SEED.json`) before the next starts."""
     from lerobot.envs.factory import make_env
     from lerobot.processor import PolicyProcessorPipeline
     from lerobot.scripts.lerobot_eval import eval_policy
 
+    if threads is not None:
+        torch.set_num_threads(threads)
     register()
-    policy, preprocessor, postprocessor, runner = policy_and_processors(model, action_steps)
+    key = run_key(model, conditions, time_limit_s, action_steps)
+    policy, preprocessor, postprocessor, _ = policy_and_processors(model, action_steps)
     config = DribbleEnv(conditions=conditions, time_limit_s=time_limit_s)
     environments = make_env(config, n_envs=1)
     vector_env = environments["dribble"][0]
     outcomes = vector_env.envs[0] = OutcomeLog(vector_env.envs[0])
     identity = PolicyProcessorPipeline(steps=[])
+    journal.mkdir(parents=True, exist_ok=True)
+    try:
+        for seed in seeds:
+            started = time.monotonic()
+            with torch.no_grad():
+                info = eval_policy(vector_env, policy, identity, identity, preprocessor, postprocessor, n_episodes=1, start_seed=seed)
+            (row,) = outcomes.finished[-1:]
+            if row["seed"] != seed:
+                raise RuntimeError(f"LeRobot played seed {row['seed']} where {seed} was asked for")
+            (lerobot,) = info["per_episode"]
+            row = {**row, "lerobot_success": bool(lerobot["success"]), "wall_s": round(time.monotonic() - started, 1)}
+            written = journal / f"{seed}.json.tmp"
+            written.write_text(json.dumps({**row, "run": key}) + "\n")
+            written.replace(journal / f"{seed}.json")
+            print(f"seed {seed}: {row['outcome']} after {row['duration_s']:.1f} s simulated, {row['wall_s']:.0f} s wall", file=sys.stderr, flush=True)
+    finally:
+        vector_env.close()
+
+
+def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 90.0, action_steps: int | None = None, jobs: int = 1, journal: Path | None = None) -> dict:
+    """`seeds` played through LeRobot's `eval_policy` (`play`), `jobs` processes at once,
+    each episode kept in `journal` as it ends, so a run cut off continues where it stopped;
+    the summary of all of them, in seed order."""
+    import multiprocessing
+    import tempfile
+
+    key = run_key(model, conditions, time_limit_s, action_steps)
+    *_, runner = policy_and_processors(model, action_steps)  # refuses a bad policy or chunk before any episode
+    scratch = None
+    if journal is None:
+        scratch = tempfile.TemporaryDirectory(prefix="lerobot-eval-")
+        journal = Path(scratch.name)
+    earlier = journaled(journal, key)
+    missing = [seed for seed in seeds if seed not in earlier]
+    if earlier:
+        print(f"scripts/lerobot eval: {len(earlier)} episodes kept in {journal}, {len(missing)} to play", file=sys.stderr)
     started = time.monotonic()
-    with torch.no_grad():
-        info = eval_policy(
-            vector_env, policy, identity, identity, preprocessor, postprocessor, n_episodes=len(seeds), start_seed=seeds.start
-        )
-    vector_env.close()
-    episodes = [
-        {**row, "lerobot_success": bool(lerobot["success"])}
-        for row, lerobot in zip(outcomes.finished, info["per_episode"])
-    ]
+    jobs = max(1, min(jobs, len(missing)))
+    shares = [missing[job::jobs] for job in range(jobs)]
+    if jobs == 1:
+        if missing:
+            play(model, missing, conditions, time_limit_s, action_steps, journal)
+    else:
+        # Spawned, not forked: each job loads its own torch, policy, renderer and simulator.
+        context = multiprocessing.get_context("spawn")
+        workers = [context.Process(target=play, args=(model, share, conditions, time_limit_s, action_steps, journal, 1)) for share in shares]
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+        failed = [worker.exitcode for worker in workers if worker.exitcode != 0]
+        if failed:
+            raise RuntimeError(f"{len(failed)} of {jobs} evaluation jobs failed (exit codes {failed}); the episodes they finished are kept in {journal}")
+    played = journaled(journal, key)
+    episodes = [played[seed] for seed in seeds if seed in played]
+    if len(episodes) != len(seeds):
+        raise RuntimeError(f"{len(seeds) - len(episodes)} episodes missing from {journal}")
+    if scratch is not None:
+        scratch.cleanup()
     goals = sum(e["outcome"] == "goal" for e in episodes)
     low, high = wilson(goals, len(episodes))
     return {
@@ -315,8 +389,10 @@ def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 9
         "goals": goals,
         "episodes": len(episodes),
         "interval": [round(low, 3), round(high, 3)],
-        "lerobot_pc_success": info["aggregated"]["pc_success"],
+        "lerobot_pc_success": round(100.0 * sum(e["lerobot_success"] for e in episodes) / max(1, len(episodes)), 1),
+        "jobs": jobs,
         "wall_s": round(time.monotonic() - started, 1),
+        "episode_wall_s": round(sum(e["wall_s"] for e in episodes), 1),
         "per_episode": episodes,
     }
 
@@ -329,14 +405,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--time-limit", type=float, default=90.0, help="simulated seconds per episode (the paper's 90)")
     parser.add_argument("--out", type=Path, required=True, help="the summary (JSON)")
     parser.add_argument("--action-steps", type=int, help="a LeRobot policy that predicts chunks (ACT): how many commands of each chunk it sends before it runs again, its n_action_steps (default the checkpoint's: 1 for scripts/lerobot train-act's, a reactive policy; the chunk's length runs it once a chunk, a tenth of the time for chunks of 10)")
+    parser.add_argument("--jobs", type=int, default=1, help="episodes played at once, each in a process of its own with one torch thread (default 1)")
     args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error("--jobs must be at least 1")
+    journal = args.out.with_name(args.out.name + ".partial")
     try:
-        summary = evaluate(args.policy, args.seeds, args.condition, args.time_limit, args.action_steps)
+        summary = evaluate(args.policy, args.seeds, args.condition, args.time_limit, args.action_steps, args.jobs, journal)
     except ValueError as error:
         print(f"scripts/lerobot eval: {error}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=1) + "\n")
+    shutil.rmtree(journal, ignore_errors=True)
     low, high = summary["interval"]
     print(f"goals {summary['goals']} / {summary['episodes']} ({low:.2f}-{high:.2f}) through LeRobot's eval_policy, {summary['wall_s']:.0f} s")
     return 0

@@ -95,6 +95,35 @@ def test_lerobots_eval_policy_plays_a_dribble_episode_with_a_shipped_cnn(tmp_pat
     assert summary["episodes"] == 1 and summary["goals"] == int(episode["outcome"] == "goal")
 
 
+@pytest.mark.skipif(not (LEROBOT_VENV / "bin" / "python").exists(), reason="no LeRobot environment (scripts/lerobot makes one)")
+def test_a_cut_off_lerobot_evaluation_continues_from_its_journal_with_jobs(tmp_path):
+    """An episode already in `OUT.partial` is kept, not played again (its made-up goal is
+    counted); the rest are played by two jobs; the journal goes once the summary is written;
+    a journal of another run (another time limit) is refused."""
+    fixture = REPOSITORY / "models" / "fixtures" / "cnn"
+    out = tmp_path / "eval.json"
+    journal = tmp_path / "eval.json.partial"
+    journal.mkdir()
+    run = {"policy": str(fixture), "conditions": "clean", "time_limit_s": 2.0, "action_steps": None}
+    kept = {"seed": 1, "outcome": "goal", "duration_s": 1.5, "is_success": True, "lerobot_success": True, "wall_s": 0.0}
+    (journal / "1.json").write_text(json.dumps({**kept, "run": run}))
+    evaluate = lambda limit: subprocess.run(  # noqa: E731
+        [str(REPOSITORY / "scripts" / "lerobot"), "eval", "--policy", str(fixture), "--seeds", "1..4",
+         "--time-limit", limit, "--jobs", "2", "--out", str(out)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    played = evaluate("2")
+    assert played.returncode == 0, played.stderr[-2000:]
+    summary = json.loads(out.read_text())
+    assert [e["seed"] for e in summary["per_episode"]] == [1, 2, 3] and summary["per_episode"][0] == kept
+    assert summary["jobs"] == 2 and summary["goals"] == 1 + sum(e["outcome"] == "goal" for e in summary["per_episode"][1:])
+    assert not journal.exists()
+    journal.mkdir()
+    (journal / "1.json").write_text(json.dumps({**kept, "run": run}))
+    refused = evaluate("3")
+    assert refused.returncode == 2 and "another run" in refused.stderr, refused.stderr[-2000:]
+
+
 TINY_ACT = """
 import sys
 from pathlib import Path
