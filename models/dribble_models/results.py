@@ -318,6 +318,48 @@ def lerobot_curves(directory: Path) -> str:
     return "\n".join(lines)
 
 
+def lerobot_baselines(directory: Path, models: Path) -> str:
+    """LeRobot policies trained on dribble's demonstrations, played in dribble's closed loop
+    through LeRobot's `eval_policy`: each `models/lerobot/baseline-*.json` (`scripts/lerobot
+    eval --policy CHECKPOINT`), the checkpoint's step and its validation error from the run's
+    curve (`curve-RUN.json`, the file's name up to the step), how the episodes ended, the
+    commands sent a chunk, the median wall time an episode, and the shipped host model's goals
+    on the same seeds (its selection or fresh run, `HOST_MODEL`)."""
+    lines = [
+        "| run | checkpoint (validation error) | seeds | goals (95 % interval) | outcomes | commands sent a chunk | wall time an episode (median) | the shipped model on the same seeds |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    host_file = models / "HOST_MODEL"
+    host = host_file.read_text().strip() if host_file.is_file() else None
+    for path in sorted(directory.glob("baseline-*.json")):
+        run = read(path)
+        episodes = run["per_episode"]
+        seeds = {int(e["seed"]) for e in episodes}
+        checkpoint = Path(run["policy"])
+        step = int(checkpoint.parent.name) if checkpoint.parent.name.isdigit() else None
+        name = checkpoint.parent.parent.parent.name if step is not None else checkpoint.name
+        curve = read(directory / f"curve-{name}.json")
+        scored = {p["step"]: p["error"] for p in curve["checkpoints"]} if curve else {}
+        at = f"{step} ({scored[step]:.3f})" if step in scored else str(step if step is not None else checkpoint)
+        outcomes = {}
+        for episode in episodes:
+            outcomes[episode["outcome"]] = outcomes.get(episode["outcome"], 0) + 1
+        ended = ", ".join(f"{label.replace('_', ' ')} {count}" for label, count in sorted(outcomes.items(), key=lambda item: -item[1]))
+        beside = "-"
+        for own in ("select.json", "fresh.json", "eval.json"):
+            summary = read(models / host / own) if host else None
+            if summary and seeds <= {int(e["seed"]) for e in summary["episodes"]}:
+                same = {**summary, "episodes": [e for e in summary["episodes"] if int(e["seed"]) in seeds]}
+                beside = f"{host}: {goals_cell(same)}"
+                break
+        chunk = run.get("action_steps", "1 (the checkpoint's)")
+        wall = statistics.median(e["wall_s"] for e in episodes) if episodes else float("nan")
+        lines.append(
+            f"| {name} | {at} | {min(seeds)}..{max(seeds)} | {goals_cell({'episodes': episodes})} | {ended} | {chunk} | {wall:.0f} s | {beside} |"
+        )
+    return "\n".join(lines)
+
+
 def generated_tables(rows: list[dict]) -> dict[str, str]:
     """Each table of the results by the name its README block carries."""
     return {"results": table(rows), "phases": phase_table(rows), "failures": failure_analysis(rows)}
@@ -439,6 +481,8 @@ def main(argv: list[str] | None = None) -> int:
             tables["lerobot"] = lerobot_agreement(lerobot, args.models)
         if lerobot and any(lerobot.glob("curve-*.json")):
             tables["lerobot-curves"] = lerobot_curves(lerobot)
+        if lerobot and any(lerobot.glob("baseline-*.json")):
+            tables["lerobot-baselines"] = lerobot_baselines(lerobot, args.models)
         try:
             texts = with_tables_in({str(path): path.read_text() for path in args.readme}, tables)
         except (ReadmeError, OSError) as error:
