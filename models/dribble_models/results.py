@@ -21,31 +21,24 @@ differs from what the committed files give.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import math
 import re
 import statistics
-from collections import Counter
 import sys
+from collections import Counter
 from pathlib import Path
 
 from .dataset import PHASES
 from .eval_summary import class_of
 from .manifest import load
 from .shipping_rules import (
-    INT8_ERROR_MARGIN,
-    V5_TICK_BUDGET,
-    V6_TICK_BUDGET,
     Candidate,
     chosen_seeds,
     conditions_rule,
-    int8_quality,
     pipeline_tick_ms,
     read_selection,
     recorded_tick,
     robot_policy,
-    scored_validation_error,
 )
 from .shipping_rules import choose as choose_candidate
 from .teachers import wilson
