@@ -287,7 +287,7 @@ def policy_and_processors(model: Path, action_steps: int | None = None):
 
 def run_key(model: Path, conditions: str, time_limit_s: float, action_steps: int | None) -> dict:
     """What makes two episodes parts of one run: a journal holding another run's is refused."""
-    return {"policy": str(model), "conditions": conditions, "time_limit_s": time_limit_s, "action_steps": action_steps}
+    return {"policy": str(model.resolve()), "conditions": conditions, "time_limit_s": time_limit_s, "action_steps": action_steps}
 
 
 def journaled(journal: Path, key: dict) -> dict[int, dict]:
@@ -337,19 +337,14 @@ def play(model: Path, seeds: list[int], conditions: str, time_limit_s: float, ac
         vector_env.close()
 
 
-def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 90.0, action_steps: int | None = None, jobs: int = 1, journal: Path | None = None) -> dict:
+def evaluate(model: Path, seeds: range, conditions: str, journal: Path, time_limit_s: float = 90.0, action_steps: int | None = None, jobs: int = 1) -> dict:
     """`seeds` played through LeRobot's `eval_policy` (`play`), `jobs` processes at once,
     each episode kept in `journal` as it ends, so a run cut off continues where it stopped;
     the summary of all of them, in seed order."""
     import multiprocessing
-    import tempfile
 
     key = run_key(model, conditions, time_limit_s, action_steps)
     *_, runner = policy_and_processors(model, action_steps)  # refuses a bad policy or chunk before any episode
-    scratch = None
-    if journal is None:
-        scratch = tempfile.TemporaryDirectory(prefix="lerobot-eval-")
-        journal = Path(scratch.name)
     earlier = journaled(journal, key)
     missing = [seed for seed in seeds if seed not in earlier]
     if earlier:
@@ -375,8 +370,6 @@ def evaluate(model: Path, seeds: range, conditions: str, time_limit_s: float = 9
     episodes = [played[seed] for seed in seeds if seed in played]
     if len(episodes) != len(seeds):
         raise RuntimeError(f"{len(seeds) - len(episodes)} episodes missing from {journal}")
-    if scratch is not None:
-        scratch.cleanup()
     goals = sum(e["outcome"] == "goal" for e in episodes)
     low, high = wilson(goals, len(episodes))
     return {
@@ -411,10 +404,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--jobs must be at least 1")
     journal = args.out.with_name(args.out.name + ".partial")
     try:
-        summary = evaluate(args.policy, args.seeds, args.condition, args.time_limit, args.action_steps, args.jobs, journal)
+        summary = evaluate(args.policy, args.seeds, args.condition, journal, args.time_limit, args.action_steps, args.jobs)
     except ValueError as error:
         print(f"scripts/lerobot eval: {error}", file=sys.stderr)
         return 2
+    except RuntimeError as error:
+        print(f"scripts/lerobot eval: {error}", file=sys.stderr)
+        return 1
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=1) + "\n")
     shutil.rmtree(journal, ignore_errors=True)
