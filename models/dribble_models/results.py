@@ -314,8 +314,8 @@ def lerobot_curves(directory: Path) -> str:
 def lerobot_baselines(directory: Path, models: Path) -> str:
     """LeRobot policies trained on dribble's demonstrations, played in dribble's closed loop
     through LeRobot's `eval_policy`: each `models/lerobot/baseline-*.json` (`scripts/lerobot
-    eval --policy CHECKPOINT`), the checkpoint's step and its validation error from the run's
-    curve (`curve-RUN.json`, the file's name up to the step), how the episodes ended, the
+    eval --policy CHECKPOINT`, named `baseline-RUN-STEP-FIRST-LAST.json`), the checkpoint's
+    step and its validation error from the run's curve (`curve-RUN.json`), how the episodes ended, the
     commands sent a chunk, the median wall time an episode, and the shipped host model's goals
     on the same seeds (its selection or fresh run, `HOST_MODEL`)."""
     lines = [
@@ -328,12 +328,14 @@ def lerobot_baselines(directory: Path, models: Path) -> str:
         run = read(path)
         episodes = run["per_episode"]
         seeds = {int(e["seed"]) for e in episodes}
-        checkpoint = Path(run["policy"])
-        step = int(checkpoint.parent.name) if checkpoint.parent.name.isdigit() else None
-        name = checkpoint.parent.parent.parent.name if step is not None else checkpoint.name
+        # baseline-RUN-STEP-FIRST-LAST.json: RUN as its curve names it (curve-RUN.json).
+        named = re.fullmatch(r"baseline-(.+)-(\d+)-\d+-\d+", path.stem)
+        if named is None:
+            raise ReadmeError(f"{path}: a baseline's file is named baseline-RUN-STEP-FIRST-LAST.json")
+        name, step = named.group(1), int(named.group(2))
         curve = read(directory / f"curve-{name}.json")
         scored = {p["step"]: p["error"] for p in curve["checkpoints"]} if curve else {}
-        at = f"{step} ({scored[step]:.3f})" if step in scored else str(step if step is not None else checkpoint)
+        at = f"{step} ({scored[step]:.3f})" if step in scored else str(step)
         outcomes = {}
         for episode in episodes:
             outcomes[episode["outcome"]] = outcomes.get(episode["outcome"], 0) + 1

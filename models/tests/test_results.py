@@ -277,7 +277,7 @@ def test_a_lerobot_learning_curve_is_a_row_with_its_best_checkpoint(tmp_path):
 def test_a_lerobot_baseline_is_a_row_beside_the_shipped_model_on_the_same_seeds(tmp_path):
     import json
 
-    from dribble_models.results import lerobot_baselines
+    from dribble_models.results import ReadmeError, lerobot_baselines
 
     models, lerobot = tmp_path / "policy", tmp_path / "lerobot"
     (models / "host").mkdir(parents=True)
@@ -288,14 +288,18 @@ def test_a_lerobot_baseline_is_a_row_beside_the_shipped_model_on_the_same_seeds(
     (lerobot / "curve-act.json").write_text(json.dumps({"checkpoints": [{"step": 1000, "error": 0.3}, {"step": 2000, "error": 0.25}]}))
     played = [{"seed": 20000, "outcome": "goal", "wall_s": 40.0}, {"seed": 20001, "outcome": "time_limit", "wall_s": 300.0}, {"seed": 20002, "outcome": "time_limit", "wall_s": 200.0}]
     run = {"policy": "/runs/act/checkpoints/002000/pretrained_model", "per_episode": played}
-    (lerobot / "baseline-act-002000-selection.json").write_text(json.dumps(run))
+    (lerobot / "baseline-act-002000-20000-20002.json").write_text(json.dumps(run))
     row = lerobot_baselines(lerobot, models).splitlines()[-1]
     assert row == "| act | 2000 (0.250) | 20000..20002 | 1 / 3 (0.06-0.79) | time limit 2, goal 1 | 1 (the checkpoint's) | 200 s | host: 3 / 3 (0.44-1.00) |"
     # Fresh seeds are set beside the host's fresh run, not its selection run.
     fresh = [{**e, "seed": e["seed"] + 10000} for e in played]
-    (lerobot / "baseline-act-002000-fresh.json").write_text(json.dumps({**run, "per_episode": fresh, "action_steps": 10}))
-    row = lerobot_baselines(lerobot, models).splitlines()[-2]
+    (lerobot / "baseline-act-002000-30000-30002.json").write_text(json.dumps({**run, "per_episode": fresh, "action_steps": 10}))
+    row = lerobot_baselines(lerobot, models).splitlines()[-1]
     assert row.endswith("| 30000..30002 | 1 / 3 (0.06-0.79) | time limit 2, goal 1 | 10 | 200 s | host: 0 / 3 (0.00-0.56) |")
+    # A file not named as the table reads it is an error, not a row without its curve.
+    (lerobot / "baseline-act.json").write_text(json.dumps(run))
+    with pytest.raises(ReadmeError, match="baseline-RUN-STEP-FIRST-LAST"):
+        lerobot_baselines(lerobot, models)
 
 
 def _profile(models: Path, name: str, build: str, cycles: int, ghz: float, p10: float, llvm: str = "llvm-mca 22.1.8") -> None:
