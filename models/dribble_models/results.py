@@ -242,6 +242,13 @@ def selection_runs(directory: Path) -> str:
     return "\n".join(lines)
 
 
+def on_seeds(summary: dict | None, seeds: set[int]) -> dict | None:
+    """`summary` with only the episodes of `seeds`, or None where it lacks one of them."""
+    if summary is None or not seeds <= {int(e["seed"]) for e in summary["episodes"]}:
+        return None
+    return {**summary, "episodes": [e for e in summary["episodes"] if int(e["seed"]) in seeds]}
+
+
 def lerobot_agreement(directory: Path, models: Path) -> str:
     """LeRobot's evaluation path against `dribble eval` on the same seeds: each
     `models/lerobot/eval-*.json` (`scripts/lerobot eval`) beside the policy's own selection
@@ -257,9 +264,9 @@ def lerobot_agreement(directory: Path, models: Path) -> str:
         policy = Path(run["policy"]).name
         seeds = {int(e["seed"]) for e in run["per_episode"]}
         own = read(models / policy / "select.json")
-        if own is None or not seeds <= {int(e["seed"]) for e in own["episodes"]}:
+        own = on_seeds(own, seeds)
+        if own is None:
             raise ReadmeError(f"{path}: {policy}'s select.json does not hold the seeds {min(seeds)}..{max(seeds)}")
-        own = {**own, "episodes": [e for e in own["episodes"] if int(e["seed"]) in seeds]}
         lerobot = {"episodes": run["per_episode"]}
         scored = {int(e["seed"]): e["outcome"] == "goal" for e in own["episodes"]}
         differ = sorted(int(e["seed"]) for e in run["per_episode"] if (e["outcome"] == "goal") != scored[int(e["seed"])])
@@ -336,15 +343,12 @@ def lerobot_baselines(directory: Path, models: Path) -> str:
         curve = read(directory / f"curve-{name}.json")
         scored = {p["step"]: p["error"] for p in curve["checkpoints"]} if curve else {}
         at = f"{step} ({scored[step]:.3f})" if step in scored else str(step)
-        outcomes = {}
-        for episode in episodes:
-            outcomes[episode["outcome"]] = outcomes.get(episode["outcome"], 0) + 1
-        ended = ", ".join(f"{label.replace('_', ' ')} {count}" for label, count in sorted(outcomes.items(), key=lambda item: -item[1]))
+        outcomes = Counter(e["outcome"] for e in episodes).most_common()
+        ended = ", ".join(f"{label.replace('_', ' ')} {count}" for label, count in outcomes)
         beside = "-"
         for own in ("select.json", "fresh.json", "eval.json"):
-            summary = read(models / host / own) if host else None
-            if summary and seeds <= {int(e["seed"]) for e in summary["episodes"]}:
-                same = {**summary, "episodes": [e for e in summary["episodes"] if int(e["seed"]) in seeds]}
+            same = on_seeds(read(models / host / own), seeds) if host else None
+            if same is not None:
                 beside = f"{host}: {goals_cell(same)}"
                 break
         chunk = run.get("action_steps", "1 (the checkpoint's)")
