@@ -164,7 +164,8 @@ def failure_analysis(rows: list[dict]) -> str:
 #: The rows of the committed table, in order: the paper's setup, then what goes beyond it
 #: (the narrow CNN: the paper's layers with fewer filters, for the V5's tick; the orbiting
 #: teacher's CNN and its DAgger; issue 48's robust student, standardised and trained under
-#: randomized conditions, and its robot-sized student); last the
+#: randomized conditions, its successors (the last command as an input; then the robot
+#: package's data and recipe at the host's width), and its robot-sized student); last the
 #: int8 policies the robot package chooses from (`robot_policy`; their selection runs are in
 #: models/selection, so they are no candidates for the shipped row).
 ROWS = ("cnn", "hcnn", "rcnn", "rcnn-24-epochs", "cnn-modal", "cnn-modal-dagger4",
@@ -174,7 +175,7 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-24-epochs", "cnn-modal", "cnn-modal-dagger4
         "rcnn-memory-dagger1-observable",
         "cnn-orbit", "cnn-dagger{iteration}-orbit",
         "cnn-conditions-distilled-clean", "cnn-conditions-motion-light", "cnn-conditions-previous-kept-branches",
-        "cnn-conditions-4-16-4-8",
+        "cnn-conditions-previous-rounds-detour5-search-dropout20", "cnn-conditions-4-16-4-8",
         "cnn-dagger1-observable-int8", "cnn-8-16-4-8-distilled-dagger1-observable-int8", "cnn-dagger2-observable-int8",
         "cnn-8-16-4-8-distilled-dagger2-observable-int8", "cnn-4-16-4-8-distilled-dagger2-observable-int8",
         "cnn-conditions-4-16-4-8-int8", "cnn-conditions-previous-whole-dagger1-4-16-4-8-int8",
