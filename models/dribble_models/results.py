@@ -264,8 +264,7 @@ def lerobot_agreement(directory: Path, models: Path) -> str:
         run = read(path)
         policy = Path(run["policy"]).name
         seeds = {int(e["seed"]) for e in run["per_episode"]}
-        own = read(models / policy / "select.json")
-        own = on_seeds(own, seeds)
+        own = on_seeds(read(models / policy / "select.json"), seeds)
         if own is None:
             raise ReadmeError(f"{path}: {policy}'s select.json does not hold the seeds {min(seeds)}..{max(seeds)}")
         lerobot = {"episodes": run["per_episode"]}
