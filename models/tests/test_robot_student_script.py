@@ -1,5 +1,6 @@
 """scripts/robot-student refuses a DAgger round it could never train on before it records
-anything: the unseen venue (evaluation only) and a driver that is not there."""
+anything: the unseen venue (evaluation only) and a driver that is not there; and a host
+candidate (--host-width) whose camera branches it was told to keep."""
 
 import subprocess
 from pathlib import Path
@@ -33,4 +34,11 @@ def test_a_round_whose_driver_is_missing_is_refused_before_recording():
     run = robot_student("--dagger-round", "cnn-conditions-policy-that-is-not-there@venue:4")
     assert run.returncode == 2
     assert "no models/policy/cnn-conditions-policy-that-is-not-there/policy.toml" in run.stderr
+    assert "record seeds" not in run.stdout
+
+
+def test_a_host_candidate_that_keeps_a_students_branches_is_refused_before_recording():
+    run = robot_student("--host-width", "--branches-from", "cnn-conditions-previous-rounds-detour5-search-dropout20")
+    assert run.returncode == 2
+    assert "--host-width trains the whole network (--whole)" in run.stderr
     assert "record seeds" not in run.stdout
