@@ -378,9 +378,10 @@ class Training:
 
     def previous_dropout_record(self) -> dict:
         a = self.args
+        shrink = {"shrink": a.previous_shrink} if a.previous_shrink > 0 else {}
         if a.previous_dropout == 0:
-            return {}
-        return {"dropout": a.previous_dropout, **({"dropout_phases": list(a.previous_dropout_phases)} if a.previous_dropout_phases != PHASES else {})}
+            return shrink
+        return {"dropout": a.previous_dropout, **({"dropout_phases": list(a.previous_dropout_phases)} if a.previous_dropout_phases != PHASES else {}), **shrink}
 
     def save(self, path: Path) -> None:
         state = {
@@ -431,6 +432,15 @@ class Training:
         units): the network must not read its label off the last command to the last digit
         (imitation's copycat), and learns from its images what the last command leaves open."""
         previous = torch.from_numpy(self.rows.previous[index])
+        if self.args.previous_shrink > 0:
+            # A last command faded toward a stop on a share of the rows, its direction kept:
+            # a network that answers a fraction of whatever it sent last (the copycat) stops
+            # itself tick by tick, its answer shrinking to a stop it then keeps. Paired with the
+            # teacher's full command, a faded one must be answered from the images; unlike a
+            # stop in its place, it still says which way around the ball the robot was going.
+            shrunk = torch.rand(len(previous), 1, generator=generator) < self.args.previous_shrink
+            factor = torch.rand(len(previous), 1, generator=generator)
+            previous = torch.where(shrunk, previous * factor, previous)
         if self.args.previous_noise > 0:
             previous = previous + self.args.previous_noise * torch.randn(previous.shape, generator=generator)
         if self.args.previous_dropout > 0:
@@ -653,6 +663,7 @@ class TrainingConfig:
     previous_noise: float = 0.2
     previous_dropout: float = 0.0
     previous_dropout_phases: tuple[str, ...] = PHASES
+    previous_shrink: float = 0.0
     keep_branches: bool = False
     test_dataset: Path | None = None
     epochs: int = 0
@@ -722,6 +733,15 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         default=PHASES,
         metavar="P,Q",
         help="with --previous-dropout: only rows in these teacher's phases (a comma list of " + ", ".join(PHASES) + ") are given the stop; default all",
+    )
+    parser.add_argument(
+        "--previous-shrink",
+        type=float,
+        default=0.0,
+        metavar="SHARE",
+        help="with --previous-command: on this share of training rows the last command is scaled by a factor drawn uniformly in [0, 1), "
+        "its direction kept (a command fading toward a stop), the label the teacher's: against the copycat that answers a fraction "
+        "of its last command and so comes to a stop it keeps (default 0)",
     )
     parser.add_argument("--keep-branches", action="store_true", help="CNN with --init-from: the start's camera branches stay as they are and only the dense layers learn (with --previous-command, the new input's weights too), so the network keeps reading its images as the start did; augmentation still reaches the branches' input")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
@@ -795,8 +815,10 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--previous-dropout is a share of the rows, in [0, 1]")
     if args.previous_dropout_phases != PHASES and args.previous_dropout == 0:
         parser.error("--previous-dropout-phases names where --previous-dropout's stop is given: give a share too")
-    if (args.previous_noise != 0.2 or args.previous_dropout > 0) and not args.previous_command:
-        parser.error("--previous-noise and --previous-dropout shape --previous-command's last command: give it")
+    if not 0.0 <= args.previous_shrink <= 1.0:
+        parser.error("--previous-shrink is a share of the rows, in [0, 1]")
+    if (args.previous_noise != 0.2 or args.previous_dropout > 0 or args.previous_shrink > 0) and not args.previous_command:
+        parser.error("--previous-noise, --previous-dropout and --previous-shrink shape --previous-command's last command: give it")
     if args.prune_from is not None and args.init_from is not None:
         parser.error("--prune-from and --init-from are two starts: name one")
     if args.keep_branches and (args.kind != "cnn" or args.init_from is None):

@@ -121,6 +121,7 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: b
             f"the last command sent is a third input ([inputs] previous; PreviousCommandCNN): on each row the command executed "
             f"at the row before, perturbed on training rows by Gaussian noise of {args.previous_noise:g}"
             + (f", a stop in its place on {args.previous_dropout:.0%} of them{dropout_phases(args)}" if args.previous_dropout > 0 else "")
+            + (f", faded toward a stop (scaled by a uniform factor in [0, 1), its direction kept) on {args.previous_shrink:.0%} of them" if args.previous_shrink > 0 else "")
         )
     if args.keep_branches:
         parts.append("the start's camera branches kept as they are, only the dense layers trained")

@@ -1,6 +1,7 @@
 """scripts/robot-student refuses a DAgger round it could never train on before it records
 anything: the unseen venue (evaluation only) and a driver that is not there; and a host
-candidate (--host-width) whose camera branches it was told to keep."""
+candidate (--host-width) whose camera branches it was told to keep; and a share of the
+rows out of [0, 1] for the trainer."""
 
 import subprocess
 from pathlib import Path
@@ -41,4 +42,12 @@ def test_a_host_candidate_that_keeps_a_students_branches_is_refused_before_recor
     run = robot_student("--host-width", "--branches-from", "cnn-conditions-previous-rounds-detour5-search-dropout20")
     assert run.returncode == 2
     assert "--host-width trains the whole network (--whole)" in run.stderr
+    assert "record seeds" not in run.stdout
+
+
+@pytest.mark.parametrize("share", ["1.5", "-0.2", "some"])
+def test_a_share_of_faded_last_commands_outside_zero_to_one_is_refused_before_recording(share):
+    run = robot_student("--previous-shrink", share)
+    assert run.returncode == 2
+    assert "--previous-shrink is a share of the rows, in [0, 1]" in run.stderr
     assert "record seeds" not in run.stdout

@@ -704,6 +704,39 @@ def test_the_last_command_is_perturbed_and_dropped_on_training_rows_as_asked(tmp
             parse_args([*common, *wrong])
 
 
+def test_the_last_command_fades_toward_a_stop_on_the_share_asked(tmp_path, rng):
+    """`--previous-shrink`: on its share of the rows the last command is scaled by a factor in
+    [0, 1), each component by the same one (its direction kept); the other rows keep theirs."""
+    data = write_dataset(tmp_path / "train", [1, 2], 40, rng)
+    common = ["--kind", "cnn", "--previous-command", "--dataset", str(data), "--out", str(tmp_path / "x"), "--validation-episodes", "1"]
+    index = np.arange(40)
+    faded = Training(parse_args([*common, "--previous-noise", "0", "--previous-shrink", "0.5"]), ds.load(data))
+    given = faded.batch_previous(index, torch.Generator().manual_seed(0)).numpy()
+    sent = faded.rows.previous[index]
+    moving = np.linalg.norm(sent, axis=1) > 1e-3
+    assert moving.sum() > 20
+    ratio = np.linalg.norm(given, axis=1)[moving] / np.linalg.norm(sent, axis=1)[moving]
+    kept = np.isclose(ratio, 1.0)
+    assert np.all(ratio < 1.0 + 1e-6) and 5 < (~kept).sum() < moving.sum() - 5, ratio
+    # The same factor on every component: the faded command points where the sent one did.
+    cosine = np.sum(given[moving] * sent[moving], axis=1) / (np.linalg.norm(given[moving], axis=1) * np.linalg.norm(sent[moving], axis=1) + 1e-12)
+    assert np.all(cosine[ratio > 1e-3] > 0.9999), cosine
+    # Every row faded at share 1, the same draws for the same generator seed.
+    every = Training(parse_args([*common, "--previous-noise", "0", "--previous-shrink", "1"]), ds.load(data))
+    first = every.batch_previous(index, torch.Generator().manual_seed(3)).numpy()
+    np.testing.assert_array_equal(first, every.batch_previous(index, torch.Generator().manual_seed(3)).numpy())
+    assert np.all(np.linalg.norm(first, axis=1)[moving] < np.linalg.norm(sent, axis=1)[moving])
+    record = Training(parse_args([*common, "--previous-shrink", "0.3"]), ds.load(data)).identity()["previous_command"]
+    assert record == {"noise": 0.2, "shrink": 0.3}
+    assert "faded toward a stop" in notes_of(parse_args([*common, "--previous-shrink", "0.3"]))
+    assert "faded" not in notes_of(parse_args(common))
+    for wrong in (["--previous-shrink", "1.5"], ["--previous-shrink", "-0.1"]):
+        with pytest.raises(SystemExit):
+            parse_args([*common, *wrong])
+    with pytest.raises(SystemExit):
+        parse_args(["--kind", "cnn", "--previous-shrink", "0.3", "--dataset", str(data), "--out", "o"])
+
+
 def test_kept_branches_stay_the_starts_while_the_dense_layers_learn(tmp_path, rng):
     """`--keep-branches`: a CNN started from another keeps its camera branches bit for bit
     (with the last command as a new input too) and trains only its dense layers."""
