@@ -371,17 +371,23 @@ class Training:
             **({"distill_camera_clean": True} if a.distill_camera_clean else {}),
             **({"validate_distilled": True} if a.validate_distilled else {}),
             **({"one_way_detour": True} if a.one_way_detour else {}),
-            **({"previous_command": {"noise": a.previous_noise, **self.previous_dropout_record()}} if a.previous_command else {}),
+            **({"previous_command": self.previous_command_record()} if a.previous_command else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
             **({"keep_branches": True} if a.keep_branches else {}),
         }
 
-    def previous_dropout_record(self) -> dict:
+    def previous_command_record(self) -> dict:
+        """How the last command is shaped on training rows, for the checkpoint's identity: each
+        key only where it is set, so that checkpoints written before it existed still resume."""
         a = self.args
-        shrink = {"shrink": a.previous_shrink} if a.previous_shrink > 0 else {}
-        if a.previous_dropout == 0:
-            return shrink
-        return {"dropout": a.previous_dropout, **({"dropout_phases": list(a.previous_dropout_phases)} if a.previous_dropout_phases != PHASES else {}), **shrink}
+        record: dict = {"noise": a.previous_noise}
+        if a.previous_dropout > 0:
+            record["dropout"] = a.previous_dropout
+            if a.previous_dropout_phases != PHASES:
+                record["dropout_phases"] = list(a.previous_dropout_phases)
+        if a.previous_shrink > 0:
+            record["shrink"] = a.previous_shrink
+        return record
 
     def save(self, path: Path) -> None:
         state = {
