@@ -1,7 +1,7 @@
 """How policies hold up under the conditions a real field brings: the table and the picture,
 generated from the summaries `scripts/conditions` leaves in models/conditions/, never typed.
 
-    python -m dribble_models.conditions_report            # models/conditions/README.md
+    python -m dribble_models.conditions_report            # models/conditions/README.md, shipped.png
     python -m dribble_models.conditions_report --frames   # and models/conditions/frames.png
 
 Per policy and seed set (models/conditions/<policy>/<seed set>/<condition>-<severity>.json):
@@ -10,6 +10,11 @@ seeds, and the failure classes of the episodes without a goal. The clean referen
 `clean.json` beside them where a run left one, else the policy's own clean closed loop on
 those seeds (models/policy/<policy>/fresh.json for fresh seeds, select.json for the
 selection seeds, eval.json for the test seeds), measured by the same engine.
+
+shipped.png draws the shipped policies' rows (models/policy/HOST_MODEL, ROBOT_MODEL) on the
+fresh seeds: each condition's ratio to clean at each severity played, from the hundred fresh
+seeds where a condition was played on them and the first twenty otherwise, beside issue 48's
+target (0.90 of clean) and floor (0.75).
 
 The picture shows what the top camera's thumbnail (what the network sees) looks like under
 each condition at severities 1, 3 and 5, rendered by `dribble render` on a selection seed.
@@ -45,6 +50,11 @@ CONDITIONS = [
 #: (fresh, fresh20: fresh.json; selection, selection25, selection-first-9: select.json; test:
 #: eval.json); it is cut to the seeds the condition runs played.
 CLEAN_SOURCES = {"fresh": "fresh.json", "selection": "select.json", "test": "eval.json"}
+
+#: The shipped policies drawn in shipped.png, by the file in models/policy naming each.
+SHIPPED = (("HOST_MODEL", "host model"), ("ROBOT_MODEL", "robot package"))
+#: Issue 48's target and floor for a condition's goals, as shares of clean goals.
+TARGET_RATIO, FLOOR_RATIO = 0.90, 0.75
 
 #: The frame in the picture: a selection seed, a second and a half into a walk and turn.
 PICTURE_SEED = 20_003
@@ -164,6 +174,9 @@ def report(root: Path, policies: Path) -> str:
         + ".",
         "",
         "![The top camera's thumbnail under each condition](frames.png)",
+        "",
+        "![The shipped policies' goals under each condition as a share of their clean goals on the "
+        "fresh seeds](shipped.png)",
     ]
     for policy_dir in sorted(p for p in root.iterdir() if p.is_dir()):
         for runs in sorted(p for p in policy_dir.iterdir() if p.is_dir()):
@@ -172,6 +185,83 @@ def report(root: Path, policies: Path) -> str:
             if rows:
                 parts += ["", table(policy_dir.name, runs.name, clean, rows)]
     return "\n".join(parts) + "\n"
+
+
+def ratio_points(root: Path, policies: Path, policy: str) -> list[dict]:
+    """A policy's ratio to clean under each condition and severity played on the fresh seeds,
+    with the Wilson 95 % interval of its goal rate divided by the clean rate (the clean count's
+    own spread left out): from the hundred fresh seeds where they were played, else the first
+    twenty. Its fresh clean goals must be known; a condition row without them is left out."""
+    points: dict[tuple[str, int], dict] = {}
+    for seed_set in ("fresh20", "fresh"):  # the hundred replace the twenty where both exist
+        runs = root / policy / seed_set
+        if not runs.is_dir():
+            continue
+        clean = clean_reference(policies / policy, seed_set, runs)
+        if clean is None:
+            continue
+        clean_goals, clean_episodes = goals_of(clean)
+        if clean_goals == 0:
+            continue
+        clean_rate = clean_goals / clean_episodes
+        for row in condition_rows(runs, clean):
+            if row["severity"] is None:
+                continue
+            low, high = wilson(row["goals"], row["episodes"])
+            points[(row["condition"], row["severity"])] = {
+                "condition": row["condition"],
+                "severity": row["severity"],
+                "ratio": row["goals"] / row["episodes"] / clean_rate,
+                "low": low / clean_rate,
+                "high": high / clean_rate,
+                "episodes": row["episodes"],
+            }
+    return sorted(points.values(), key=lambda p: (CONDITIONS.index(p["condition"]) if p["condition"] in CONDITIONS else len(CONDITIONS), p["severity"]))
+
+
+def plot_shipped(root: Path, policies: Path, out: Path) -> None:
+    """shipped.png: one panel a shipped policy, a marker a condition and severity (filled where
+    played on the hundred fresh seeds), the target and the floor as lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    figure, axes = plt.subplots(len(SHIPPED), 1, figsize=(9, 3.2 * len(SHIPPED)), dpi=110, sharex=True)
+    colours = {1: "tab:green", 2: "tab:olive", 3: "tab:blue", 4: "tab:purple", 5: "tab:red"}
+    for axis, (file, role) in zip(axes, SHIPPED):
+        policy = (policies / file).read_text().strip()
+        points = ratio_points(root, policies, policy)
+        severities = sorted({p["severity"] for p in points})
+        for severity in severities:
+            shift = (severity - 3) * 0.12
+            mine = [p for p in points if p["severity"] == severity]
+            x = [CONDITIONS.index(p["condition"]) + shift for p in mine]
+            y = [p["ratio"] for p in mine]
+            axis.errorbar(
+                x, y, yerr=[[p["ratio"] - p["low"] for p in mine], [p["high"] - p["ratio"] for p in mine]],
+                fmt="none", ecolor=colours.get(severity, "grey"), alpha=0.5, linewidth=1,
+            )
+            for xi, p in zip(x, mine):
+                axis.plot(xi, p["ratio"], "o", color=colours.get(severity, "grey"), markerfacecolor=colours.get(severity, "grey") if p["episodes"] >= 100 else "white")
+            axis.plot([], [], "o", color=colours.get(severity, "grey"), label=f"severity {severity}")
+        axis.axhline(1.0, color="black", linewidth=0.8)
+        axis.axhline(TARGET_RATIO, color="tab:orange", linestyle="--", linewidth=1, label=f"target {TARGET_RATIO:.2f}")
+        axis.axhline(FLOOR_RATIO, color="tab:red", linestyle=":", linewidth=1, label=f"floor {FLOOR_RATIO:.2f}")
+        axis.set_ylim(min([0.3] + [p["low"] - 0.05 for p in points]), 1.25)
+        axis.set_ylabel("goals / clean goals")
+        axis.set_title(f"{role}: {policy}", fontsize=8)
+        axis.legend(loc="lower left", fontsize=7, ncol=5)
+    axes[-1].set_xticks(range(len(CONDITIONS)))
+    axes[-1].set_xticklabels(CONDITIONS, rotation=30, ha="right", fontsize=8)
+    figure.text(
+        0.01, 0.005,
+        "Fresh seeds: filled, all 100; open, the first 20. Bars: the Wilson 95 % interval of the condition's goal rate over the clean rate.",
+        fontsize=7,
+    )
+    figure.tight_layout(rect=(0, 0.02, 1, 1))
+    figure.savefig(out, metadata={"Software": None})
+    plt.close(figure)
 
 
 def render_frames(dribble: Path, out: Path) -> None:
@@ -224,6 +314,9 @@ def main(argv: list[str] | None = None) -> int:
     args.root.mkdir(parents=True, exist_ok=True)
     readme.write_text(text)
     print(f"wrote {readme}")
+    if all((args.policies / file).is_file() for file, _ in SHIPPED):
+        plot_shipped(args.root, args.policies, args.root / "shipped.png")
+        print(f"wrote {args.root / 'shipped.png'}")
     if args.frames:
         render_frames(args.dribble, args.root / "frames.png")
         print(f"wrote {args.root / 'frames.png'}")

@@ -63,5 +63,28 @@ def test_runs_on_one_sample_frames_are_refused(tmp_path):
         conditions_report.report(root, policies)
 
 
+def test_the_shipped_picture_takes_the_hundred_fresh_seeds_over_the_first_twenty(tmp_path):
+    root, policies = tmp_path / "conditions", tmp_path / "policy"
+    _summary(policies / "best" / "fresh.json", range(30_000, 30_100), 80)
+    _summary(root / "best" / "fresh20" / "light-3.json", range(30_000, 30_020), 8)
+    _summary(root / "best" / "fresh20" / "light-5.json", range(30_000, 30_020), 4)
+    _summary(root / "best" / "fresh" / "light-3.json", range(30_000, 30_100), 72)
+    points = {(p["condition"], p["severity"]): p for p in conditions_report.ratio_points(root, policies, "best")}
+    assert set(points) == {("light", 3), ("light", 5)}
+    # Severity 3 from the hundred: 72 of 100 against the clean 80 of 100.
+    assert points[("light", 3)]["episodes"] == 100
+    assert points[("light", 3)]["ratio"] == pytest.approx(0.9)
+    # Severity 5 from the twenty, against the clean goals on those twenty.
+    clean_twenty = sum(e["outcome"] == "goal" for e in json.loads((policies / "best" / "fresh.json").read_text())["episodes"][:20])
+    assert points[("light", 5)]["ratio"] == pytest.approx(4 / clean_twenty)
+    low, high = conditions_report.wilson(4, 20)
+    assert points[("light", 5)]["low"] == pytest.approx(low * 20 / clean_twenty)
+    assert points[("light", 5)]["high"] == pytest.approx(high * 20 / clean_twenty)
+    for file in ("HOST_MODEL", "ROBOT_MODEL"):
+        (policies / file).write_text("best\n")
+    conditions_report.plot_shipped(root, policies, tmp_path / "shipped.png")
+    assert (tmp_path / "shipped.png").read_bytes().startswith(b"\x89PNG")
+
+
 def test_the_committed_table_is_what_the_committed_summaries_give():
     assert conditions_report.main(["--check"]) == 0
