@@ -191,7 +191,8 @@ def ratio_points(root: Path, policies: Path, policy: str) -> list[dict]:
     """A policy's ratio to clean under each condition and severity played on the fresh seeds,
     with the Wilson 95 % interval of its goal rate divided by the clean rate (the clean count's
     own spread left out): from the hundred fresh seeds where they were played, else the first
-    twenty. Its fresh clean goals must be known; a condition row without them is left out."""
+    twenty. Its fresh clean goals must be known; rows without them, and runs of a mix such as
+    `randomized`, are left out."""
     points: dict[tuple[str, int], dict] = {}
     for seed_set in ("fresh20", "fresh"):  # the hundred replace the twenty where both exist
         runs = root / policy / seed_set
@@ -205,7 +206,7 @@ def ratio_points(root: Path, policies: Path, policy: str) -> list[dict]:
             continue
         clean_rate = clean_goals / clean_episodes
         for row in condition_rows(runs, clean):
-            if row["severity"] is None:
+            if row["severity"] is None or row["condition"] not in CONDITIONS:
                 continue
             low, high = wilson(row["goals"], row["episodes"])
             points[(row["condition"], row["severity"])] = {
@@ -216,7 +217,7 @@ def ratio_points(root: Path, policies: Path, policy: str) -> list[dict]:
                 "high": high / clean_rate,
                 "episodes": row["episodes"],
             }
-    return sorted(points.values(), key=lambda p: (CONDITIONS.index(p["condition"]) if p["condition"] in CONDITIONS else len(CONDITIONS), p["severity"]))
+    return sorted(points.values(), key=lambda p: (CONDITIONS.index(p["condition"]), p["severity"]))
 
 
 def plot_shipped(root: Path, policies: Path, out: Path) -> None:
@@ -237,9 +238,8 @@ def plot_shipped(root: Path, policies: Path, out: Path) -> None:
             shift = (severity - 3) * 0.12
             mine = [p for p in points if p["severity"] == severity]
             x = [CONDITIONS.index(p["condition"]) + shift for p in mine]
-            y = [p["ratio"] for p in mine]
             axis.errorbar(
-                x, y, yerr=[[p["ratio"] - p["low"] for p in mine], [p["high"] - p["ratio"] for p in mine]],
+                x, [p["ratio"] for p in mine], yerr=[[p["ratio"] - p["low"] for p in mine], [p["high"] - p["ratio"] for p in mine]],
                 fmt="none", ecolor=colours.get(severity, "grey"), alpha=0.5, linewidth=1,
             )
             for xi, p in zip(x, mine):
