@@ -235,16 +235,16 @@ def plot_shipped(root: Path, policies: Path, out: Path) -> None:
         points = ratio_points(root, policies, policy)
         severities = sorted({p["severity"] for p in points})
         for severity in severities:
-            shift = (severity - 3) * 0.12
+            shift, colour = (severity - 3) * 0.12, colours.get(severity, "grey")
             mine = [p for p in points if p["severity"] == severity]
             x = [CONDITIONS.index(p["condition"]) + shift for p in mine]
             axis.errorbar(
                 x, [p["ratio"] for p in mine], yerr=[[p["ratio"] - p["low"] for p in mine], [p["high"] - p["ratio"] for p in mine]],
-                fmt="none", ecolor=colours.get(severity, "grey"), alpha=0.5, linewidth=1,
+                fmt="none", ecolor=colour, alpha=0.5, linewidth=1,
             )
             for xi, p in zip(x, mine):
-                axis.plot(xi, p["ratio"], "o", color=colours.get(severity, "grey"), markerfacecolor=colours.get(severity, "grey") if p["episodes"] >= 100 else "white")
-            axis.plot([], [], "o", color=colours.get(severity, "grey"), label=f"severity {severity}")
+                axis.plot(xi, p["ratio"], "o", color=colour, markerfacecolor=colour if p["episodes"] >= 100 else "white")
+            axis.plot([], [], "o", color=colour, label=f"severity {severity}")
         axis.axhline(1.0, color="black", linewidth=0.8)
         axis.axhline(TARGET_RATIO, color="tab:orange", linestyle="--", linewidth=1, label=f"target {TARGET_RATIO:.2f}")
         axis.axhline(FLOOR_RATIO, color="tab:red", linestyle=":", linewidth=1, label=f"floor {FLOOR_RATIO:.2f}")
