@@ -18,14 +18,12 @@ Then a tally. The target goal is the one on the ball's starting side (eval_summa
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
 from collections import Counter
-from pathlib import Path
 
-from .eval_summary import GOAL_X_M, PATH_RATE_HZ, REACHED_M, wrap_angle
+from .eval_summary import GOAL_X_M, PATH_RATE_HZ, REACHED_M, NotPaths, study_of_paths, study_parser, wrap_angle
 
 #: How far off the ball-to-goal line, degrees, a push may point and still push toward the goal.
 TOWARD_GOAL_DEG = 90.0
@@ -79,14 +77,11 @@ def ways_out(trajectories: dict) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dribble_models.ball_out", description=__doc__.split("\n\n")[0])
-    parser.add_argument("trajectories", type=Path, help="the file `dribble eval --trajectories` wrote")
-    parser.add_argument("--json", type=Path, metavar="OUT", help="also write the rows and the tally as JSON")
-    args = parser.parse_args(argv)
+    args = study_parser("ball_out", __doc__, "also write the rows and the tally as JSON").parse_args(argv)
     try:
-        rows = ways_out(json.loads(args.trajectories.read_text()))
-    except (OSError, ValueError, KeyError, TypeError, IndexError) as error:
-        print(f"error: {args.trajectories} is not a `dribble eval --trajectories` file with paths: {error}", file=sys.stderr)
+        rows = study_of_paths(args.trajectories, ways_out)
+    except NotPaths as error:
+        print(f"error: {error}", file=sys.stderr)
         return 2
     for row in rows:
         off = "" if row["off_line_deg"] is None else f", {row['off_line_deg']:.0f} deg off the ball-to-goal line"

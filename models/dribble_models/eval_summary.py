@@ -26,9 +26,13 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 from .cluster import seed_range
+
+T = TypeVar("T")
 
 #: Half the SPL field's length, metres: the target goal's x.
 GOAL_X_M = 4.5
@@ -124,6 +128,29 @@ def summarise_episode(episode: dict) -> dict:
 class LostController(ValueError):
     """Episodes whose controller died or stopped answering: they say nothing of the policy
     (a machine starved by other work trips the lock-step timeout), so no summary counts them."""
+
+
+class NotPaths(ValueError):
+    """A file a study of paths cannot read: not a `dribble eval --trajectories` file, or one
+    without the paths and headings the study reads."""
+
+
+def study_parser(prog: str, doc: str, json_help: str) -> argparse.ArgumentParser:
+    """The command line every study of one trajectories file takes (`ball_out`,
+    `resting_places`): the file, and `--json OUT` for the rows as JSON."""
+    parser = argparse.ArgumentParser(prog=f"python -m dribble_models.{prog}", description=doc.split("\n\n")[0])
+    parser.add_argument("trajectories", type=Path, help="the file `dribble eval --trajectories` wrote")
+    parser.add_argument("--json", type=Path, metavar="OUT", help=json_help)
+    return parser
+
+
+def study_of_paths(path: Path, study: Callable[[dict], T]) -> T:
+    """`study` of the trajectories file at `path`; `NotPaths`, naming the file, where it cannot
+    be read or lacks what the study reads."""
+    try:
+        return study(json.loads(path.read_text()))
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as error:
+        raise NotPaths(f"{path} is not a `dribble eval --trajectories` file with paths: {error}") from error
 
 
 def summarise(trajectories: dict, seeds: range | None = None) -> dict:

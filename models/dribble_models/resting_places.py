@@ -16,13 +16,11 @@ it still, a fixed point of what it sees there, not of the episode's state.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
-from pathlib import Path
 
-from .eval_summary import PATH_RATE_HZ, summarise_episode, wrap_angle
+from .eval_summary import PATH_RATE_HZ, NotPaths, study_of_paths, study_parser, summarise_episode, wrap_angle
 
 #: The stretch at an episode's end over which the robot must have stayed put, seconds.
 REST_S = 10.0
@@ -94,14 +92,11 @@ def shared_places(rows: list[dict]) -> list[list[int]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dribble_models.resting_places", description=__doc__.split("\n\n")[0])
-    parser.add_argument("trajectories", type=Path, help="the file `dribble eval --trajectories` wrote")
-    parser.add_argument("--json", type=Path, metavar="OUT", help="also write the rows and the shared places as JSON")
-    args = parser.parse_args(argv)
+    args = study_parser("resting_places", __doc__, "also write the rows and the shared places as JSON").parse_args(argv)
     try:
-        rows = resting_places(json.loads(args.trajectories.read_text()))
-    except (OSError, ValueError, KeyError, TypeError, IndexError) as error:
-        print(f"error: {args.trajectories} is not a `dribble eval --trajectories` file with paths: {error}", file=sys.stderr)
+        rows = study_of_paths(args.trajectories, resting_places)
+    except NotPaths as error:
+        print(f"error: {error}", file=sys.stderr)
         return 2
     for row in rows:
         x, y, theta = row["pose"]

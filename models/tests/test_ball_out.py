@@ -55,3 +55,4 @@ def test_only_balls_out_are_listed_and_the_command_tallies_them(tmp_path, capsys
     assert json.loads((tmp_path / "out.json").read_text())["tally"] == {"carried while going around / side": 1}
     path.write_text(json.dumps({"episodes": [{"seed": 1, "outcome": "ball_out"}]}))
     assert ball_out.main([str(path)]) == 2
+    assert f"error: {path} is not a `dribble eval --trajectories` file with paths" in capsys.readouterr().err

@@ -61,3 +61,4 @@ def test_episodes_resting_at_one_pose_share_a_place_and_goals_are_left_out(tmp_p
     assert json.loads((tmp_path / "out.json").read_text())["shared_places"] == [[20008, 20041]]
     path.write_text(json.dumps({"episodes": [{"seed": 1, "outcome": "time_limit", "robot": [[0.0]]}]}))
     assert resting_places.main([str(path)]) == 2
+    assert f"error: {path} is not a `dribble eval --trajectories` file with paths" in capsys.readouterr().err
