@@ -53,6 +53,9 @@ CLEAN_SOURCES = {"fresh": "fresh.json", "selection": "select.json", "test": "eva
 
 #: The shipped policies drawn in shipped.png, by the file in models/policy naming each.
 SHIPPED = (("HOST_MODEL", "host model"), ("ROBOT_MODEL", "robot package"))
+#: What a shipped policy's panel says before any condition is played on its fresh seeds (a
+#: policy just shipped: its conditions are a function of the policy and start empty).
+NOT_PLAYED = "no condition played on the fresh seeds yet (scripts/conditions --seeds fresh20)"
 #: Issue 48's target and floor for a condition's goals, as shares of clean goals.
 TARGET_RATIO, FLOOR_RATIO = 0.90, 0.75
 
@@ -245,6 +248,10 @@ def plot_shipped(root: Path, policies: Path, out: Path) -> None:
             for xi, p in zip(x, mine):
                 axis.plot(xi, p["ratio"], "o", color=colour, markerfacecolor=colour if p["episodes"] >= 100 else "white")
             axis.plot([], [], "o", color=colour, label=f"severity {severity}")
+        if not points:
+            axis.text(
+                0.5, 0.3, NOT_PLAYED, transform=axis.transAxes, ha="center", va="center", fontsize=9, color="grey",
+            )
         axis.axhline(1.0, color="black", linewidth=0.8)
         axis.axhline(TARGET_RATIO, color="tab:orange", linestyle="--", linewidth=1, label=f"target {TARGET_RATIO:.2f}")
         axis.axhline(FLOOR_RATIO, color="tab:red", linestyle=":", linewidth=1, label=f"floor {FLOOR_RATIO:.2f}")

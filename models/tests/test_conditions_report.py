@@ -84,6 +84,11 @@ def test_the_shipped_picture_takes_the_hundred_fresh_seeds_over_the_first_twenty
         (policies / file).write_text("best\n")
     conditions_report.plot_shipped(root, policies, tmp_path / "shipped.png")
     assert (tmp_path / "shipped.png").read_bytes().startswith(b"\x89PNG")
+    # A policy just shipped has played no condition yet: its panel says so, and the picture is drawn.
+    (policies / "ROBOT_MODEL").write_text("just-shipped\n")
+    assert conditions_report.ratio_points(root, policies, "just-shipped") == []
+    conditions_report.plot_shipped(root, policies, tmp_path / "shipped-one-empty.png")
+    assert (tmp_path / "shipped-one-empty.png").read_bytes() != (tmp_path / "shipped.png").read_bytes()
 
 
 def test_the_committed_table_is_what_the_committed_summaries_give():
