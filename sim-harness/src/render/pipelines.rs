@@ -138,7 +138,10 @@ impl Pipelines {
         let camera_layout = uniform_layout(device, "camera", false);
         let model_layout = uniform_layout(device, "model", true);
         let scene_layouts = [&camera_layout, &model_layout];
-        let scene_source = include_str!("scene.wgsl");
+        let scene_source = concat!(
+            include_str!("scene_vertex.wgsl"),
+            include_str!("scene.wgsl")
+        );
         let scene_pipeline = render_pipeline(
             device,
             "scene",
@@ -162,7 +165,10 @@ impl Pipelines {
             ),
         });
         let lit_layouts = [&camera_layout, &model_layout, &light_layout];
-        let lit_source = include_str!("scene_lit.wgsl");
+        let lit_source = concat!(
+            include_str!("scene_vertex.wgsl"),
+            include_str!("scene_lit.wgsl")
+        );
         let lit_pipeline = render_pipeline(
             device,
             "lit scene",

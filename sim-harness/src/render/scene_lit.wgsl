@@ -1,15 +1,7 @@
-// The scene under a directional light: the flat colours and soft light of scene.wgsl, plus
-// a light from `light.towards` whose share of the light is lost in the shadows of the
-// casters (capsules: goal posts and bars, the ball, robots, people), and bright spots on
-// the field where that light falls.
-
-struct Camera {
-    view_projection: mat4x4<f32>,
-};
-
-struct Model {
-    transform: mat4x4<f32>,
-};
+// The scene under a directional light (after scene_vertex.wgsl): the clean scene's flat
+// colours and soft light, plus a light from `light.towards` whose share of the light is lost
+// in the shadows of the casters (capsules: goal posts and bars, the ball, robots, people),
+// and bright spots on the field where that light falls.
 
 const MAX_CASTERS: u32 = 64u;
 const MAX_SPOTS: u32 = 8u;
@@ -25,8 +17,6 @@ struct Light {
     spots: array<vec4<f32>, 16>,
 };
 
-@group(0) @binding(0) var<uniform> camera: Camera;
-@group(1) @binding(0) var<uniform> model: Model;
 // The same buffer twice. Read as a uniform buffer its values are loaded once for every
 // fragment of a group (a storage buffer's are gathered per fragment: two thirds more time on
 // lavapipe), but lavapipe specialises a shader on the uniform values its control flow reads
@@ -34,28 +24,6 @@ struct Light {
 // what decides control flow, the counts, is read through the storage alias.
 @group(2) @binding(0) var<uniform> light: Light;
 @group(2) @binding(1) var<storage, read> light_flow: Light;
-
-struct VertexOut {
-    @builtin(position) clip: vec4<f32>,
-    @location(0) normal: vec3<f32>,
-    @location(1) colour: vec3<f32>,
-    @location(2) world: vec3<f32>,
-};
-
-@vertex
-fn vertex_main(
-    @location(0) position: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) colour: vec3<f32>,
-) -> VertexOut {
-    var out: VertexOut;
-    let world = model.transform * vec4<f32>(position, 1.0);
-    out.clip = camera.view_projection * world;
-    out.normal = (model.transform * vec4<f32>(normal, 0.0)).xyz;
-    out.colour = colour;
-    out.world = world.xyz;
-    return out;
-}
 
 // Shortest distance between segments p0-p1 and q0-q1.
 fn segment_distance(p0: vec3<f32>, p1: vec3<f32>, q0: vec3<f32>, q1: vec3<f32>) -> f32 {
@@ -132,8 +100,7 @@ fn lit(point: vec3<f32>) -> f32 {
 fn fragment_main(in: VertexOut) -> @location(0) vec4<f32> {
     let n = normalize(in.normal);
     // The soft light of the clean scene.
-    let soft = normalize(vec3<f32>(0.3, 0.2, 1.0));
-    let shade = 0.55 + 0.45 * abs(dot(n, soft));
+    let shade = soft_shade(n);
     let towards = light.towards_share.xyz;
     let share = light.towards_share.w;
     let reach = lit(in.world);
