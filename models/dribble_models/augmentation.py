@@ -1,15 +1,18 @@
 """What the trainer does to a batch's thumbnails before the network sees them: `Augment`, the
-photometric and geometric jitter of `--augment`, and `CameraAugment`, what the simulator's
-camera conditions do to a thumbnail, at the thumbnail's scale (`--camera-augment`)."""
+photometric and geometric jitter of `--augment`, `CameraAugment`, what the simulator's
+camera conditions do to a thumbnail, at the thumbnail's scale (`--camera-augment`), and
+`mirrored`, a row turned into the row of its mirror state (`--mirror`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
 from .camera_effects import CameraMotion, apply_camera_effects, light_patches
+from .dataset import PHASES
 
 
 @dataclass
@@ -38,6 +41,65 @@ class Augment:
             noisy = shifted * gain + offset + torch.randn(shifted.shape, generator=generator) * self.noise
             out.append(noisy.clamp(0.0, 1.0))
         return out[0], out[1]
+
+
+#: The axes of a speed command (forward, left, turn: `contract.COMMAND_SCALE`) that a mirror
+#: along the field's long axis negates.
+MIRRORED_AXES = (1, 2)
+
+
+#: The teacher's search phase (`expert::Phase::Search`).
+SEARCH = PHASES.index("search")
+
+
+def mirrorable(phase: np.ndarray) -> np.ndarray:
+    """Which rows of one episode (its teacher's phases, in order) are their mirror state's
+    rows too: all but the search before the episode's first sighting. There the teacher turns
+    left by convention (`BallMemory::FIRST_SEARCH_TURN`: it has nothing to choose by), and a
+    mirrored row would teach the opposite turn from images that look alike, a mean of no turn
+    at all: a robot that never starts its search. Once it has seen the ball it searches toward
+    the side it saw it last, which a mirror turns with it."""
+    first_sighting = np.flatnonzero(phase != SEARCH)
+    before = len(phase) if len(first_sighting) == 0 else int(first_sighting[0])
+    allowed = np.ones(len(phase), dtype=bool)
+    allowed[:before] = False
+    return allowed
+
+
+def mirrored(
+    share: float,
+    generator: torch.Generator,
+    allowed: torch.Tensor,
+    top: torch.Tensor,
+    bottom: torch.Tensor,
+    command: torch.Tensor,
+    previous: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """A batch with `share` of its `allowed` rows (bool (N,); drawn from `generator`)
+    replaced by their mirror state's: both thumbnails (N, 1, H, W) flipped left to right, the command's (N, 3) sideways
+    and turn negated, and the last command's likewise where given.
+
+    The field, its goals and lines, the walk and the teacher are the same in a mirror along the
+    field's long axis: the target goal is the one on the ball's half either way, the teacher
+    walks around the ball on the side of the ball-to-goal line it stands on and searches
+    toward the side it last saw the ball, so the mirror of a recorded row is a row the teacher
+    would have recorded in the mirror state (the cameras look straight ahead from the head's
+    middle, so a mirrored image is what they would see there). Not so for a teacher that
+    always walks around the ball one way (`--one-way-detour`): the trainer refuses the pair, nor
+    for the first search (`mirrorable`)."""
+    chosen = (torch.rand(command.shape[0], generator=generator) < share) & allowed
+    sign = torch.ones(command.shape[1])
+    sign[list(MIRRORED_AXES)] = -1.0
+
+    def images(batch: torch.Tensor) -> torch.Tensor:
+        picked = chosen.to(batch.device).view(-1, *([1] * (batch.dim() - 1)))
+        return torch.where(picked, batch.flip(-1), batch)
+
+    def commands(batch: torch.Tensor) -> torch.Tensor:
+        picked = chosen.to(batch.device).unsqueeze(1)
+        return torch.where(picked, batch * sign.to(batch.device, batch.dtype), batch)
+
+    return images(top), images(bottom), commands(command), None if previous is None else commands(previous)
 
 
 @dataclass

@@ -78,7 +78,7 @@ from torch import nn
 from tqdm import tqdm
 
 from . import contract
-from .augmentation import Augment, CameraAugment
+from .augmentation import Augment, CameraAugment, mirrorable, mirrored
 from .dataset import PHASES, Dataset, DatasetError, Episode, load, read_index
 from .distillation import distilled_labels
 from .export import export_policy
@@ -144,6 +144,8 @@ class Rows:
     phase: np.ndarray
     # The command executed at the row before each row (`Episode.previous`), f32 [N, 3].
     previous: np.ndarray
+    # Whether a row's label is its mirror state's too (`augmentation.mirrorable`), bool [N].
+    mirrorable: np.ndarray
 
     @staticmethod
     def of(episodes: list[Episode]) -> "Rows":
@@ -153,6 +155,7 @@ class Rows:
             np.concatenate([e.command for e in episodes]),
             np.concatenate([e.phase for e in episodes]),
             np.concatenate([e.previous for e in episodes]),
+            np.concatenate([mirrorable(e.phase) for e in episodes]),
         )
 
 
@@ -374,6 +377,7 @@ class Training:
             **({"previous_command": self.previous_command_record()} if a.previous_command else {}),
             **({"features_from": start_sha256(a.features_from), "freeze_features": a.freeze_features} if a.features_from is not None else {}),
             **({"keep_branches": True} if a.keep_branches else {}),
+            **({"mirror": a.mirror} if a.mirror > 0 else {}),
         }
 
     def previous_command_record(self) -> dict:
@@ -493,8 +497,12 @@ class Training:
         for k, index in work:
             network = self.model if self.kind == "cnn" else self.model.experts[k]
             top, bottom, target = self.batch_inputs(index, generator)
-            if isinstance(network, PreviousCommandCNN):
-                loss = nn.functional.mse_loss(network(top, bottom, self.batch_previous(index, generator)), target)
+            previous = self.batch_previous(index, generator) if isinstance(network, PreviousCommandCNN) else None
+            if self.args.mirror > 0:
+                allowed = torch.from_numpy(self.rows.mirrorable[index])
+                top, bottom, target, previous = mirrored(self.args.mirror, generator, allowed, top, bottom, target, previous)
+            if previous is not None:
+                loss = nn.functional.mse_loss(network(top, bottom, previous), target)
             elif isinstance(network, ModalCNN):
                 loss = winner_takes_all_loss(network, top, bottom, target)
             else:
@@ -671,6 +679,7 @@ class TrainingConfig:
     previous_dropout_phases: tuple[str, ...] = PHASES
     previous_shrink: float = 0.0
     keep_branches: bool = False
+    mirror: float = 0.0
     test_dataset: Path | None = None
     epochs: int = 0
     epoch_fraction: float = 1.0
@@ -749,6 +758,16 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         "its direction kept (a command fading toward a stop), the label the teacher's: against the copycat that answers a fraction "
         "of its last command and so comes to a stop it keeps (default 0)",
     )
+    parser.add_argument(
+        "--mirror",
+        type=float,
+        default=0.0,
+        metavar="SHARE",
+        help="CNN: on this share of the training rows both thumbnails are mirrored left to right and the command's sideways "
+        "and turn axes negated (the last command's too, with --previous-command): the field, its goals, the walk and the "
+        "teacher are the same seen in a mirror along the field's long axis, so each row is also the row of its mirror "
+        "state (beyond the paper; default 0)",
+    )
     parser.add_argument("--keep-branches", action="store_true", help="CNN with --init-from: the start's camera branches stay as they are and only the dense layers learn (with --previous-command, the new input's weights too), so the network keeps reading its images as the start did; augmentation still reaches the branches' input")
     parser.add_argument("--test-dataset", type=Path, help="test data for the test error in the manifest (reported, never used to choose)")
     parser.add_argument("--epochs", type=int, help=f"epochs (default {DEFAULT_EPOCHS})")
@@ -825,6 +844,12 @@ def parse_args(argv: list[str] | None = None) -> TrainingConfig:
         parser.error("--previous-shrink is a share of the rows, in [0, 1]")
     if (args.previous_noise != 0.2 or args.previous_dropout > 0 or args.previous_shrink > 0) and not args.previous_command:
         parser.error("--previous-noise, --previous-dropout and --previous-shrink shape --previous-command's last command: give it")
+    if not 0.0 <= args.mirror <= 1.0:
+        parser.error("--mirror is a share of the rows, in [0, 1]")
+    if args.mirror > 0 and (args.kind != "cnn" or args.modes != 1):
+        parser.error("--mirror trains a one-output CNN (--kind cnn, --modes 1)")
+    if args.mirror > 0 and args.one_way_detour:
+        parser.error("--one-way-detour walks around the ball always clockwise, which a mirror turns anticlockwise: not with --mirror")
     if args.prune_from is not None and args.init_from is not None:
         parser.error("--prune-from and --init-from are two starts: name one")
     if args.keep_branches and (args.kind != "cnn" or args.init_from is None):

@@ -125,6 +125,8 @@ def notes_of(args: TrainingConfig, device: torch.device | None = None, folded: b
         )
     if args.keep_branches:
         parts.append("the start's camera branches kept as they are, only the dense layers trained")
+    if args.mirror > 0:
+        parts.append(f"{args.mirror:.0%} of the training rows mirrored left to right, the command's sideways and turn negated (the last command's too): the row of the mirror state (augmentation.mirrored)")
     if args.one_way_detour:
         parts.append("the teacher's detour around the ball relabelled to go one way, clockwise, on training and validation rows (dribble_models.one_way_detour)")
     if args.features_from is not None:

@@ -45,9 +45,10 @@ def test_a_host_candidate_that_keeps_a_students_branches_is_refused_before_recor
     assert "record seeds" not in run.stdout
 
 
+@pytest.mark.parametrize("option", ["--previous-shrink", "--mirror"])
 @pytest.mark.parametrize("share", ["1.5", "-0.2", "some"])
-def test_a_share_of_faded_last_commands_outside_zero_to_one_is_refused_before_recording(share):
-    run = robot_student("--previous-shrink", share)
+def test_a_share_of_the_rows_outside_zero_to_one_is_refused_before_recording(option, share):
+    run = robot_student(option, share)
     assert run.returncode == 2
-    assert "--previous-shrink is a share of the rows, in [0, 1]" in run.stderr
+    assert f"{option} is a share of the rows, in [0, 1]" in run.stderr
     assert "record seeds" not in run.stdout

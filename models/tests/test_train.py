@@ -17,7 +17,7 @@ from dribble_models.networks import RCNN, ModalCNN, RCNNStep
 from dribble_models.networks import CNN, PAPER_FILTERS, Filters
 from dribble_models.one_way_detour import OneWayDetour
 from dribble_models.shipped_weights import load_pruned_weights, load_shipped_weights
-from dribble_models.augmentation import CameraAugment
+from dribble_models.augmentation import CameraAugment, mirrorable, mirrored
 from dribble_models.command_metric import row_errors, sent_commands
 from dribble_models.prediction import gating_features, predict_rcnn, to_input
 from dribble_models.rcnn_windows import rcnn_forward_windows
@@ -614,6 +614,7 @@ def test_a_folded_start_answers_as_before_on_a_typical_thumbnail(rng):
             command=np.zeros((n, 3), np.float32),
             phase=np.zeros(n, np.uint8),
             previous=np.zeros((n, 3), np.float32),
+            mirrorable=np.ones(n, bool),
         )
 
     top = rng.integers(40, 200, (120, 160), dtype=np.uint8)
@@ -735,6 +736,64 @@ def test_the_last_command_fades_toward_a_stop_on_the_share_asked(tmp_path, rng):
             parse_args([*common, *wrong])
     with pytest.raises(SystemExit):
         parse_args(["--kind", "cnn", "--previous-shrink", "0.3", "--dataset", str(data), "--out", "o"])
+
+
+def test_the_first_search_is_never_mirrored_and_every_later_row_may_be():
+    """`mirrorable`: the teacher turns left by convention until it first sees the ball, so the
+    search rows before an episode's first sighting have no mirror row; the rest have."""
+    search, approach, align = (ds.PHASES.index(p) for p in ("search", "approach", "align"))
+    phases = np.array([search, search, search, approach, align, search, search, approach], np.uint8)
+    np.testing.assert_array_equal(mirrorable(phases), [False, False, False, True, True, True, True, True])
+    np.testing.assert_array_equal(mirrorable(np.array([approach, search], np.uint8)), [True, True])
+    assert not mirrorable(np.full(5, search, np.uint8)).any()
+    assert mirrorable(np.zeros(0, np.uint8)).shape == (0,)
+
+
+def test_a_mirrored_row_is_its_mirror_states_row(rng):
+    """`mirrored`: a chosen row's thumbnails flipped left to right, its command's and last
+    command's sideways and turn negated, forward kept; rows not chosen or not allowed as they
+    were; the same draws for the same generator seed, about the share asked for."""
+    n = 400
+    top = torch.rand(n, 1, 120, 160)
+    bottom = torch.rand(n, 1, 60, 80)
+    command = torch.from_numpy(rng.uniform(-1, 1, (n, 3)).astype(np.float32))
+    previous = torch.from_numpy(rng.uniform(-1, 1, (n, 3)).astype(np.float32))
+    allowed = torch.ones(n, dtype=torch.bool)
+    allowed[:50] = False
+    t, b, c, p = mirrored(0.5, torch.Generator().manual_seed(7), allowed, top, bottom, command, previous)
+    flipped = (c[:, 1] != command[:, 1])
+    assert not flipped[:50].any()
+    assert 140 < int(flipped.sum()) < 210, int(flipped.sum())
+    assert torch.equal(t[flipped], top[flipped].flip(-1)) and torch.equal(b[flipped], bottom[flipped].flip(-1))
+    assert torch.equal(t[~flipped], top[~flipped]) and torch.equal(b[~flipped], bottom[~flipped])
+    for given, original in ((c, command), (p, previous)):
+        assert torch.equal(given[:, 0], original[:, 0])
+        assert torch.equal(given[flipped][:, 1:], -original[flipped][:, 1:])
+        assert torch.equal(given[~flipped], original[~flipped])
+    again = mirrored(0.5, torch.Generator().manual_seed(7), allowed, top, bottom, command, previous)
+    assert all(torch.equal(x, y) for x, y in zip(again, (t, b, c, p)))
+    # Twice mirrored is the row itself; without a last command there is none to mirror.
+    twice = mirrored(1.0, torch.Generator(), torch.ones(n, dtype=torch.bool), *mirrored(1.0, torch.Generator(), torch.ones(n, dtype=torch.bool), top, bottom, command)[:3])
+    assert torch.equal(twice[0], top) and torch.equal(twice[2], command) and twice[3] is None
+
+
+def test_mirroring_is_asked_for_a_one_output_cnn_and_named_where_it_was_used(tmp_path, rng):
+    """`--mirror SHARE`: in the checkpoint's identity and the notes where set (not otherwise,
+    so older checkpoints resume), the training rows know which are mirrorable, and what it
+    cannot serve is refused."""
+    data = write_dataset(tmp_path / "train", [1, 2], 40, rng)
+    common = ["--kind", "cnn", "--previous-command", "--dataset", str(data), "--out", str(tmp_path / "x"), "--validation-episodes", "1"]
+    trainer = Training(parse_args([*common, "--mirror", "0.5"]), ds.load(data))
+    assert trainer.identity()["mirror"] == 0.5
+    assert "mirror" not in Training(parse_args(common), ds.load(data)).identity()
+    np.testing.assert_array_equal(trainer.rows.mirrorable, mirrorable(trainer.train_episodes[0].phase))
+    assert "mirrored left to right" in notes_of(parse_args([*common, "--mirror", "0.5"]))
+    assert "mirrored" not in notes_of(parse_args(common))
+    for wrong in (["--mirror", "1.5"], ["--mirror", "-0.1"], ["--mirror", "0.5", "--one-way-detour"], ["--mirror", "0.5", "--modes", "2"]):
+        with pytest.raises(SystemExit):
+            parse_args([*common, *wrong])
+    with pytest.raises(SystemExit):
+        parse_args(["--kind", "rcnn", "--mirror", "0.5", "--dataset", str(data), "--out", "o"])
 
 
 def test_kept_branches_stay_the_starts_while_the_dense_layers_learn(tmp_path, rng):
