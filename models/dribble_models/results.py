@@ -178,6 +178,7 @@ ROWS = ("cnn", "hcnn", "rcnn", "rcnn-24-epochs", "cnn-modal", "cnn-modal-dagger4
         "cnn-conditions-previous-rounds-detour5-search-dropout20", "cnn-conditions-previous-rounds-own-light-venue",
         "cnn-conditions-previous-rounds-detour5-search-dropout20-shrink30",
         "cnn-conditions-previous-rounds-detour5-search-dropout20-shrink30-from-host",
+        "cnn-conditions-previous-rounds-detour5-search-dropout20-shrink30-mirror50",
         "cnn-conditions-4-16-4-8",
         "cnn-dagger1-observable-int8", "cnn-8-16-4-8-distilled-dagger1-observable-int8", "cnn-dagger2-observable-int8",
         "cnn-8-16-4-8-distilled-dagger2-observable-int8", "cnn-4-16-4-8-distilled-dagger2-observable-int8",
