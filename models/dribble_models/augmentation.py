@@ -59,11 +59,7 @@ def mirrorable(phase: np.ndarray) -> np.ndarray:
     mirrored row would teach the opposite turn from images that look alike, a mean of no turn
     at all: a robot that never starts its search. Once it has seen the ball it searches toward
     the side it saw it last, which a mirror turns with it."""
-    first_sighting = np.flatnonzero(phase != SEARCH)
-    before = len(phase) if len(first_sighting) == 0 else int(first_sighting[0])
-    allowed = np.ones(len(phase), dtype=bool)
-    allowed[:before] = False
-    return allowed
+    return np.logical_or.accumulate(np.asarray(phase) != SEARCH)
 
 
 def mirrored(
@@ -76,8 +72,8 @@ def mirrored(
     previous: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """A batch with `share` of its `allowed` rows (bool (N,); drawn from `generator`)
-    replaced by their mirror state's: both thumbnails (N, 1, H, W) flipped left to right, the command's (N, 3) sideways
-    and turn negated, and the last command's likewise where given.
+    replaced by their mirror state's: both thumbnails (N, 1, H, W) flipped left to right, the
+    command's (N, 3) sideways and turn negated, and the last command's likewise where given.
 
     The field, its goals and lines, the walk and the teacher are the same in a mirror along the
     field's long axis: the target goal is the one on the ball's half either way, the teacher
@@ -85,8 +81,8 @@ def mirrored(
     toward the side it last saw the ball, so the mirror of a recorded row is a row the teacher
     would have recorded in the mirror state (the cameras look straight ahead from the head's
     middle, so a mirrored image is what they would see there). Not so for a teacher that
-    always walks around the ball one way (`--one-way-detour`): the trainer refuses the pair, nor
-    for the first search (`mirrorable`)."""
+    always walks around the ball one way (`--one-way-detour`, which the trainer refuses with
+    `--mirror`), nor for the first search (`mirrorable`)."""
     chosen = (torch.rand(command.shape[0], generator=generator) < share) & allowed
     sign = torch.ones(command.shape[1])
     sign[list(MIRRORED_AXES)] = -1.0
