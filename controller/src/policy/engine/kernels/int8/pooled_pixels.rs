@@ -399,7 +399,7 @@ mod tests {
             // Weights from -64 to 64, a row's taps 0, 1 and 4 (which meet in one lane) 64
             // (the 16-bit sums refused), and from -42 to 42 (taken: 3 x 42 x 255 = 32,130).
             let mut wide: Vec<i8> = (0..OUTPUTS * 25)
-                .map(|_| (next() % 129) as i8 - 64)
+                .map(|_| ((next() % 129) as i32 - 64) as i8)
                 .collect();
             for tap in [0, 1, 4] {
                 wide[tap] = 64;
