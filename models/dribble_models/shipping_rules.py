@@ -120,7 +120,7 @@ class Candidate:
         )
 
 
-#: The tags of an engine label (controller/src/policy/learned.rs, `EngineReport`) that name
+#: The tags of an engine label (controller/src/policy/learned/engine_choice.rs, `EngineReport`) that name
 #: the kernels the compiled engine lowered a network to: a function of the network's layers
 #: and the instruction set, the same for every run of that network.
 NETWORK_KERNEL_TAGS = ("winograd", "int8")

@@ -3,8 +3,8 @@
 //!
 //! The property tests of the lowering, the structure-aware fuzz target and the regression
 //! corpus all ask this one question, so the answer is defined once. The controller's own
-//! load check (`learned.rs`) asks it of the networks it is about to run, through the ports
-//! the manifest names.
+//! load check (`learned/load_check.rs`) asks it of the networks it is about to run, through
+//! the ports the manifest names.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
