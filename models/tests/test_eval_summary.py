@@ -145,3 +145,27 @@ def test_a_kept_summary_joins_the_rest_of_a_run_only_where_it_is_the_same_run(tm
     source.write_text(json.dumps({**rest, "episodes": [episode(1, "goal", path, path)]}))
     assert eval_summary.main([str(source), str(target), "--joining", str(kept)]) == 2
     assert "both runs hold the seeds [1]" in capsys.readouterr().err
+
+
+def test_a_runs_pieces_join_into_one_summary_only_where_they_are_one_run(tmp_path, capsys):
+    from dribble_models import summary_join
+
+    def piece(name, seeds, **identity):
+        path = tmp_path / name
+        episodes = [{"seed": s, "outcome": "goal" if s % 2 else "time_limit"} for s in seeds]
+        path.write_text(json.dumps({"engine": "tract", "conditions": "noise:3", **identity, "episodes": episodes}))
+        return str(path)
+
+    target = tmp_path / "summary.json"
+    pieces = [piece("b.json", [20, 21]), piece("a.json", [0, 1]), piece("c.json", [40, 41])]
+    assert summary_join.main([str(target), *pieces]) == 0
+    written = json.loads(target.read_text())
+    assert [e["seed"] for e in written["episodes"]] == [0, 1, 20, 21, 40, 41]
+    assert written["engine"] == "tract" and written["conditions"] == "noise:3"
+    assert "goals: 3/6" in capsys.readouterr().out
+    # A piece of another engine or condition, or one that repeats a seed: refused, nothing written.
+    for other in [piece("d.json", [60], engine="compiled (avx2+fma)"), piece("e.json", [60], conditions="noise:5"), piece("f.json", [21])]:
+        target.unlink(missing_ok=True)
+        assert summary_join.main([str(target), *pieces, other]) == 2
+        assert "are not one run" in capsys.readouterr().err
+        assert not target.exists()
