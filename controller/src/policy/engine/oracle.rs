@@ -60,8 +60,9 @@ fn lengths_differ(
     (engine != other).then(|| Comparison::Disagree(describe(engine, other)))
 }
 
-/// The largest finite magnitude in `values` (0 when none is finite).
-fn scale(values: &[f32]) -> f32 {
+/// The largest finite magnitude in `values` (0 when none is finite): the `scale` of
+/// [`agree`].
+pub fn scale(values: &[f32]) -> f32 {
     values
         .iter()
         .filter(|v| v.is_finite())

@@ -1,13 +1,19 @@
 //! The load check: before the compiled engine is trusted with a network from outside, its
 //! plan runs beside tract on the same pseudo-random inputs and every output the controller
 //! reads must agree within the plan's tolerance.
+//!
+//! The agreement rule is the engine oracle's ([`oracle::agree`]), so the fuzz target, the
+//! property tests and the controller judge a plan alike. The inputs are not the oracle's:
+//! the check feeds what the controller feeds (thumbnails through the manifest's
+//! normalisation, recurrent states, the last command) through the ports the manifest
+//! names, and reads only the outputs the controller reads.
 
 use std::sync::Arc;
 
 use tract_onnx::prelude::{TValue, Tensor};
 
 use super::network::PortNames;
-use crate::policy::engine::CompiledNetwork;
+use crate::policy::engine::{CompiledNetwork, oracle};
 use crate::policy::manifest::{BOTTOM_SHAPE, PREVIOUS_SHAPE, PolicyManifest, TOP_SHAPE};
 use crate::policy::network_input::write_network_input;
 use crate::policy::onnx_network::{OnnxNetwork, Port};
@@ -114,15 +120,12 @@ pub(super) fn engine_agrees_with_tract(
                     tract.len()
                 ));
             }
-            // The plan's tolerance: float graphs differ from tract in summation order only (a
-            // few 1e-6 on the shipped models), int8 ones also where a value rounds onto the
-            // neighbouring grid step; a wrong lowering by far more.
-            let tolerance = compiled.tolerance();
+            // The oracle's rule with the plan's tolerance: float graphs differ from tract in
+            // summation order only (a few 1e-6 on the shipped models), int8 ones also where a
+            // value rounds onto the neighbouring grid step; a wrong lowering by far more.
+            let (tolerance, scale) = (compiled.tolerance(), oracle::scale(tract));
             for (i, (&a, &b)) in engine.iter().zip(tract).enumerate() {
-                let agree = a == b
-                    || (a.is_nan() && b.is_nan())
-                    || (a - b).abs() <= tolerance * (1.0 + b.abs());
-                if !agree {
+                if !oracle::agree(a, b, scale, tolerance) {
                     return Err(format!(
                         "the engine's output {name:?}[{i}] is {a}, tract's {b} (check {probe})"
                     ));
