@@ -18,11 +18,81 @@ use crate::policy::manifest::{BOTTOM_SHAPE, PREVIOUS_SHAPE, PolicyManifest, TOP_
 use crate::policy::network_input::write_network_input;
 use crate::policy::onnx_network::{OnnxNetwork, Port};
 
-/// Runs `compiled` and tract's `network` on the same two pseudo-random inputs (thumbnails
-/// of random pixels through the manifest's normalisation; random recurrent states and last
-/// commands in [-1, 1]) and
-/// compares every output the controller reads. Leaves the compiled plan's recurrent inputs
-/// at zero, as at an episode's start.
+/// The pseudo-random numbers of the check (xorshift64: the same draws on every machine).
+struct Draws(u64);
+
+impl Draws {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// `count` values in [-1, 1).
+    fn signed(&mut self, count: usize) -> Vec<f32> {
+        (0..count)
+            .map(|_| (self.next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0)
+            .collect()
+    }
+
+    /// A thumbnail of `shape`'s random pixels through the manifest's normalisation.
+    fn thumbnail(&mut self, shape: &[usize], manifest: &PolicyManifest) -> Vec<f32> {
+        let pixels: Vec<u8> = (0..shape.iter().product::<usize>())
+            .map(|_| (self.next() >> 56) as u8)
+            .collect();
+        let mut values = vec![0.0; pixels.len()];
+        write_network_input(&manifest.normalisation, &pixels, &mut values);
+        values
+    }
+}
+
+/// One input of a probe: its port, its name in the file, its shape and its values.
+type Feed<'n> = (Port, &'n str, &'n [usize], Vec<f32>);
+
+/// A probe's inputs (both thumbnails; the last command, and the recurrent states in
+/// [-1, 1], where the network reads them) and the outputs the controller reads, by port
+/// and name.
+fn probe<'n>(
+    draws: &mut Draws,
+    names: &'n PortNames,
+    manifest: &PolicyManifest,
+    state_shape: &'n [usize; 3],
+) -> (Vec<Feed<'n>>, Vec<(Port, &'n str)>) {
+    let top = draws.thumbnail(&TOP_SHAPE, manifest);
+    let bottom = draws.thumbnail(&BOTTOM_SHAPE, manifest);
+    let units = state_shape[2];
+    let (hidden, cell) = (draws.signed(units), draws.signed(units));
+    let previous = draws.signed(PREVIOUS_SHAPE[1]);
+    let mut feeds = vec![
+        (Port::Top, names.top.as_str(), &TOP_SHAPE[..], top),
+        (
+            Port::Bottom,
+            names.bottom.as_str(),
+            &BOTTOM_SHAPE[..],
+            bottom,
+        ),
+    ];
+    if let Some(name) = &names.previous {
+        feeds.push((Port::Previous, name.as_str(), &PREVIOUS_SHAPE[..], previous));
+    }
+    let mut expected = vec![(Port::Command, names.command.as_str())];
+    if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent {
+        feeds.push((Port::Hidden, h_in.as_str(), &state_shape[..], hidden));
+        feeds.push((Port::Cell, c_in.as_str(), &state_shape[..], cell));
+        expected.push((Port::Hidden, h_out.as_str()));
+        expected.push((Port::Cell, c_out.as_str()));
+    }
+    if let Some((_, commands, logits)) = &names.hypotheses {
+        expected.push((Port::Hypotheses, commands.as_str()));
+        expected.push((Port::Logits, logits.as_str()));
+    }
+    (feeds, expected)
+}
+
+/// Runs `compiled` and tract's `network` on the same two pseudo-random probes and compares
+/// every output the controller reads by the oracle's rule with the plan's tolerance. Leaves
+/// the compiled plan's recurrent inputs at zero, as at an episode's start.
 pub(super) fn engine_agrees_with_tract(
     compiled: &mut CompiledNetwork,
     network: &mut OnnxNetwork,
@@ -30,59 +100,10 @@ pub(super) fn engine_agrees_with_tract(
     manifest: &PolicyManifest,
     units: usize,
 ) -> Result<(), String> {
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    };
-    let input_of = |pixels: Vec<u8>| -> Vec<f32> {
-        let mut values = vec![0.0; pixels.len()];
-        write_network_input(&manifest.normalisation, &pixels, &mut values);
-        values
-    };
-    for probe in 0..2 {
-        let mut random_pixels = |shape: &[usize]| -> Vec<u8> {
-            (0..shape.iter().product::<usize>())
-                .map(|_| (next() >> 56) as u8)
-                .collect()
-        };
-        let top = input_of(random_pixels(&TOP_SHAPE));
-        let bottom = input_of(random_pixels(&BOTTOM_SHAPE));
-        let mut random_state = || -> Vec<f32> {
-            (0..units)
-                .map(|_| (next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0)
-                .collect()
-        };
-        let (hidden, cell) = (random_state(), random_state());
-        let previous: Vec<f32> = (0..PREVIOUS_SHAPE[1])
-            .map(|_| (next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0)
-            .collect();
-        let mut feeds = vec![
-            (Port::Top, names.top.as_str(), &TOP_SHAPE[..], top),
-            (
-                Port::Bottom,
-                names.bottom.as_str(),
-                &BOTTOM_SHAPE[..],
-                bottom,
-            ),
-        ];
-        if let Some(name) = &names.previous {
-            feeds.push((Port::Previous, name.as_str(), &PREVIOUS_SHAPE[..], previous));
-        }
-        let state_shape = [1, 1, units];
-        let mut expected = vec![(Port::Command, names.command.as_str())];
-        if let Some([h_in, c_in, h_out, c_out]) = &names.recurrent {
-            feeds.push((Port::Hidden, h_in.as_str(), &state_shape[..], hidden));
-            feeds.push((Port::Cell, c_in.as_str(), &state_shape[..], cell));
-            expected.push((Port::Hidden, h_out.as_str()));
-            expected.push((Port::Cell, c_out.as_str()));
-        }
-        if let Some((_, commands, logits)) = &names.hypotheses {
-            expected.push((Port::Hypotheses, commands.as_str()));
-            expected.push((Port::Logits, logits.as_str()));
-        }
+    let mut draws = Draws(0x9e37_79b9_7f4a_7c15);
+    let state_shape = [1, 1, units];
+    for check in 0..2 {
+        let (feeds, expected) = probe(&mut draws, names, manifest, &state_shape);
         let mut tensors = Vec::new();
         for (port, name, shape, values) in &feeds {
             let input = compiled
@@ -113,24 +134,8 @@ pub(super) fn engine_agrees_with_tract(
                 .find(|(p, _)| p == port)
                 .and_then(|(_, value)| value.try_as_plain_ram().ok()?.as_slice::<f32>().ok())
                 .ok_or_else(|| format!("tract gave no output {name:?}"))?;
-            if engine.len() != tract.len() {
-                return Err(format!(
-                    "output {name:?}: {} values from the engine, {} from tract",
-                    engine.len(),
-                    tract.len()
-                ));
-            }
-            // The oracle's rule with the plan's tolerance: float graphs differ from tract in
-            // summation order only (a few 1e-6 on the shipped models), int8 ones also where a
-            // value rounds onto the neighbouring grid step; a wrong lowering by far more.
-            let (tolerance, scale) = (compiled.tolerance(), oracle::scale(tract));
-            for (i, (&a, &b)) in engine.iter().zip(tract).enumerate() {
-                if !oracle::agree(a, b, scale, tolerance) {
-                    return Err(format!(
-                        "the engine's output {name:?}[{i}] is {a}, tract's {b} (check {probe})"
-                    ));
-                }
-            }
+            outputs_agree(name, engine, tract, compiled.tolerance())
+                .map_err(|why| format!("{why} (check {check})"))?;
         }
     }
     if let Some([h_in, c_in, _, _]) = &names.recurrent {
@@ -141,6 +146,32 @@ pub(super) fn engine_agrees_with_tract(
         }
     }
     Ok(())
+}
+
+/// The engine's and tract's values of output `name` agree by the oracle's rule: float
+/// graphs differ from tract in summation order only (a few 1e-6 on the shipped models),
+/// int8 ones also where a value rounds onto the neighbouring grid step; a wrong lowering by
+/// far more.
+fn outputs_agree(name: &str, engine: &[f32], tract: &[f32], tolerance: f32) -> Result<(), String> {
+    if engine.len() != tract.len() {
+        return Err(format!(
+            "output {name:?}: {} values from the engine, {} from tract",
+            engine.len(),
+            tract.len()
+        ));
+    }
+    let scale = oracle::scale(tract);
+    match engine
+        .iter()
+        .zip(tract)
+        .position(|(&a, &b)| !oracle::agree(a, b, scale, tolerance))
+    {
+        Some(i) => Err(format!(
+            "the engine's output {name:?}[{i}] is {}, tract's {}",
+            engine[i], tract[i]
+        )),
+        None => Ok(()),
+    }
 }
 
 #[cfg(test)]
