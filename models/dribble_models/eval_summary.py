@@ -12,12 +12,9 @@ that goal at the end, how far it turned, when it first saw the ball, and for an 
 without a goal its failure class (FAILURE_CLASSES). Beside the episodes: the engine that
 ran the policy.
 
-    python -m dribble_models.eval_summary REST.json SUMMARY.json --joining FIRST.json
-
-joins a kept summary of the same policy, engine, conditions and camera samples on other
-seeds (the first 20 fresh seeds' committed summary, say, when their paths are no longer in
-the cache) to the episodes of REST.json: an episode is a function of its seed, its
-condition, the policy and the engine, so the first seeds need not be played again.
+`joined` puts two such summaries of one run on disjoint seeds together
+(`dribble_models.summary_join`, which `scripts/conditions` uses for a hundred-seed run played
+in pieces).
 """
 
 from __future__ import annotations
@@ -210,12 +207,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("trajectories", type=Path, help="the file `dribble eval --trajectories` wrote")
     parser.add_argument("summary", type=Path, help="where to write the summary (JSON)")
     parser.add_argument("--seeds", type=seed_range, metavar="A..B", help="only the episodes of these seeds (every one of them must be in the file)")
-    parser.add_argument(
-        "--joining",
-        type=Path,
-        metavar="SUMMARY",
-        help="a kept summary of the same policy, engine and conditions on other seeds: its episodes join these",
-    )
     args = parser.parse_args(argv)
     try:
         trajectories = json.loads(args.trajectories.read_text())
@@ -226,12 +217,6 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError, TypeError) as error:
         print(f"error: {args.trajectories} is not a `dribble eval --trajectories` file: {error}", file=sys.stderr)
         return 2
-    if args.joining is not None:
-        try:
-            summary = joined(json.loads(args.joining.read_text()), summary)
-        except (OSError, ValueError, KeyError, TypeError) as error:
-            print(f"error: {args.joining} cannot join {args.trajectories}: {error}", file=sys.stderr)
-            return 2
     args.summary.write_text(json.dumps(summary, indent=1) + "\n")
     return 0
 

@@ -124,29 +124,6 @@ def test_episodes_whose_controller_was_lost_are_refused_not_counted(tmp_path, ca
     assert eval_summary.main([str(source), str(target), "--seeds", "5..6"]) == 0
 
 
-def test_a_kept_summary_joins_the_rest_of_a_run_only_where_it_is_the_same_run(tmp_path, capsys):
-    path = [[0.0, 0.0], [0.0, 0.0]]
-    first = {"engine": "tract", "conditions": "light:3", "episodes": [{"seed": 1, "outcome": "goal"}, {"seed": 0, "outcome": "goal"}]}
-    kept, source, target = tmp_path / "first.json", tmp_path / "paths.json", tmp_path / "summary.json"
-    kept.write_text(json.dumps(first))
-    rest = {"engine": "tract", "conditions": "light:3", "episodes": [episode(s, "time_limit", path, path) for s in (3, 2)]}
-    source.write_text(json.dumps(rest))
-    assert eval_summary.main([str(source), str(target), "--joining", str(kept)]) == 0
-    written = json.loads(target.read_text())
-    assert [e["seed"] for e in written["episodes"]] == [0, 1, 2, 3]
-    assert written["conditions"] == "light:3" and written["engine"] == "tract"
-    # Another engine, other conditions or shared seeds are another run: refused, nothing written.
-    for key, value in [("engine", "compiled (avx2+fma)"), ("conditions", "light:5")]:
-        target.unlink(missing_ok=True)
-        source.write_text(json.dumps({**rest, key: value}))
-        assert eval_summary.main([str(source), str(target), "--joining", str(kept)]) == 2
-        assert f"differ in {key}" in capsys.readouterr().err
-        assert not target.exists()
-    source.write_text(json.dumps({**rest, "episodes": [episode(1, "goal", path, path)]}))
-    assert eval_summary.main([str(source), str(target), "--joining", str(kept)]) == 2
-    assert "both runs hold the seeds [1]" in capsys.readouterr().err
-
-
 def test_a_runs_pieces_join_into_one_summary_only_where_they_are_one_run(tmp_path, capsys):
     from dribble_models import summary_join
 
