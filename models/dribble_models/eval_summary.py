@@ -12,9 +12,7 @@ that goal at the end, how far it turned, when it first saw the ball, and for an 
 without a goal its failure class (FAILURE_CLASSES). Beside the episodes: the engine that
 ran the policy.
 
-`joined` puts two such summaries of one run on disjoint seeds together
-(`dribble_models.summary_join`, which `scripts/conditions` uses for a hundred-seed run played
-in pieces).
+`dribble_models.summary_join` puts such summaries of one run on disjoint seeds together.
 """
 
 from __future__ import annotations
@@ -181,24 +179,6 @@ def summarise(trajectories: dict, seeds: range | None = None) -> dict:
     # the frames every shipped result saw.
     if trajectories.get("camera_samples", 4) != 4:
         summary["camera_samples"] = trajectories["camera_samples"]
-    return summary
-
-
-#: What two summaries must share for their episodes to be one run's.
-RUN_IDENTITY = ("engine", "conditions", "camera_samples")
-
-
-def joined(first: dict, rest: dict) -> dict:
-    """One summary of the episodes of `first` and `rest`, by seed: runs of the same engine,
-    conditions and camera samples on seeds that do not overlap (else a ValueError)."""
-    for key in RUN_IDENTITY:
-        if first.get(key) != rest.get(key):
-            raise ValueError(f"the two runs differ in {key}: {first.get(key)!r} and {rest.get(key)!r}")
-    shared = sorted({e["seed"] for e in first["episodes"]} & {e["seed"] for e in rest["episodes"]})
-    if shared:
-        raise ValueError(f"both runs hold the seeds {shared[:5]}")
-    summary = dict(rest)
-    summary["episodes"] = sorted(first["episodes"] + rest["episodes"], key=lambda e: e["seed"])
     return summary
 
 

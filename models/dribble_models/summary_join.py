@@ -5,7 +5,7 @@
 `scripts/conditions --seeds fresh` plays its hundred seeds as the first 20 (the `fresh20` set's
 own summary) and four more pieces of 20, each summary kept as soon as its episodes end, so a
 machine lost in the middle costs at most one piece. The pieces must be one run's: the same
-engine, conditions and camera samples (`eval_summary.RUN_IDENTITY`), no seed in two of them;
+engine, conditions and camera samples (`RUN_IDENTITY`), no seed in two of them;
 else nothing is written. An episode is a function of its seed, its condition, the policy and
 the engine, so pieces played on different days are one run.
 """
@@ -18,7 +18,22 @@ import sys
 from functools import reduce
 from pathlib import Path
 
-from .eval_summary import joined
+#: What two summaries must share for their episodes to be one run's.
+RUN_IDENTITY = ("engine", "conditions", "camera_samples")
+
+
+def joined(first: dict, rest: dict) -> dict:
+    """One summary of the episodes of `first` and `rest`, by seed: runs of the same engine,
+    conditions and camera samples on seeds that do not overlap (else a ValueError)."""
+    for key in RUN_IDENTITY:
+        if first.get(key) != rest.get(key):
+            raise ValueError(f"the two runs differ in {key}: {first.get(key)!r} and {rest.get(key)!r}")
+    shared = sorted({e["seed"] for e in first["episodes"]} & {e["seed"] for e in rest["episodes"]})
+    if shared:
+        raise ValueError(f"both runs hold the seeds {shared[:5]}")
+    summary = dict(rest)
+    summary["episodes"] = sorted(first["episodes"] + rest["episodes"], key=lambda e: e["seed"])
+    return summary
 
 
 def join(pieces: list[dict]) -> dict:
